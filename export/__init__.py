@@ -1,0 +1,1 @@
+"""trioman.export: torch -> ONNX and checkpoint -> portable avatar files (later issues)."""

@@ -1,0 +1,1 @@
+"""Body models behind one small interface (see ``base.BodyModel``), created by name."""

@@ -1,0 +1,1 @@
+"""Synthetic subjects: body shape, procedural clothing, motions, cameras, mesh rendering."""

@@ -1,0 +1,3 @@
+from trioman.cli import main
+
+raise SystemExit(main())
