@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
 import sys
 from dataclasses import dataclass
 
@@ -74,7 +75,9 @@ def main(argv: list[str] | None = None) -> int:
             require_extra(cmd.name, cmd.extra)
         return int(args._module.run(args) or 0)
     except (MissingExtraError, ValueError, FileNotFoundError, FileExistsError) as err:
-        # Expected user-facing failures: one clear line, no traceback.
+        # Expected user-facing failures: one clear line; TRIOMAN_DEBUG=1 shows the traceback.
+        if os.environ.get("TRIOMAN_DEBUG"):
+            raise
         print(f"trioman {cmd.name}: error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -1,0 +1,66 @@
+"""Pinhole cameras in the OpenCV convention (x right, y down, z forward), z-up world.
+
+``viewmat`` is world->camera [4, 4]; ``K`` is [3, 3] in pixels with pixel centres at (j + 0.5, i + 0.5).
+Orbit angles: azimuth 0 puts the camera in front of a subject facing -y, azimuth +90 deg on the
+subject's left (+x); elevation > 0 looks down from above.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """[3, 3] pinhole matrix."""
+    if not (fx > 0 and fy > 0):
+        raise ValueError(f"K: focal lengths must be > 0, got fx={fx}, fy={fy}")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """World->camera [4, 4] for a camera at ``eye`` looking at ``target`` with world ``up`` on screen up."""
+    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+    forward = target - eye
+    n = np.linalg.norm(forward)
+    if not np.isfinite(n) or n < 1e-12:
+        raise ValueError(f"eye: camera position {eye.tolist()} coincides with target {target.tolist()}")
+    forward /= n
+    right = np.cross(forward, up)
+    if np.linalg.norm(right) < 1e-9:  # looking straight along up: pick any perpendicular
+        right = np.cross(forward, [1.0, 0.0, 0.0] if abs(forward[0]) < 0.9 else [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    R = np.stack([right, down, forward])
+    viewmat = np.eye(4)
+    viewmat[:3, :3] = R
+    viewmat[:3, 3] = -R @ eye
+    return viewmat
+
+
+def orbit_position(center: np.ndarray, azimuth: float, elevation: float, distance: float) -> np.ndarray:
+    """Camera centre on a sphere about ``center`` (angles in radians, see module doc). -> [3]."""
+    if not distance > 0:
+        raise ValueError(f"distance: must be > 0, got {distance}")
+    ce = np.cos(elevation)
+    offset = np.array([ce * np.sin(azimuth), -ce * np.cos(azimuth), np.sin(elevation)])
+    return np.asarray(center, dtype=np.float64) + distance * offset
+
+
+def orbit_viewmat(center: np.ndarray, azimuth: float, elevation: float, distance: float) -> np.ndarray:
+    """World->camera [4, 4] looking at ``center`` from the given orbit angles."""
+    return look_at(orbit_position(center, azimuth, elevation, distance), center)
+
+
+def camera_center(viewmat: np.ndarray) -> np.ndarray:
+    """Camera position in world coordinates. [..., 4, 4] -> [..., 3]."""
+    R, t = viewmat[..., :3, :3], viewmat[..., :3, 3]
+    return -np.einsum("...ba,...b->...a", R, t)
+
+
+def project(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points [N, 3] -> pixel coordinates [N, 2] and camera depth [N]."""
+    cam = points @ viewmat[:3, :3].T + viewmat[:3, 3]
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (cam[:, :2] / z[:, None]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
+    return uv, z

@@ -1,0 +1,49 @@
+import numpy as np
+import pytest
+
+from trioman.runtime import motions
+from trioman.runtime.skeleton import Skeleton
+
+NAMES = ["root", "pelvis.L", "upperleg01.L", "lowerleg01.L", "foot.L", "pelvis.R", "upperleg01.R", "lowerleg01.R",
+         "foot.R", "spine05", "spine04", "spine01", "upperarm01.L", "lowerarm01.L", "upperarm01.R", "lowerarm01.R",
+         "neck01", "head"]
+PARENTS = [-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 12, 11, 14, 11, 16]
+JOINTS = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, -0.05], [0.12, 0, -0.45], [0.14, 0, -0.85], [-0.1, 0, 0],
+                   [-0.1, 0, -0.05], [-0.12, 0, -0.45], [-0.14, 0, -0.85], [0, 0, 0.05], [0, 0, 0.2], [0, 0, 0.4],
+                   [0.18, 0, 0.45], [0.35, 0, 0.25], [-0.18, 0, 0.45], [-0.35, 0, 0.25], [0, 0, 0.55], [0, 0, 0.65]])
+
+
+@pytest.fixture
+def skeleton():
+    return Skeleton(tuple(NAMES), np.array(PARENTS), JOINTS)
+
+
+@pytest.mark.parametrize("make", [motions.turn_in_place, *motions.TEST_MOTIONS.values()])
+def test_motion_shapes_finite_and_grounded(skeleton, make):
+    m = make(skeleton, 24)
+    assert m.pose.shape == (24, len(NAMES), 3) and m.trans.shape == (24, 3)
+    assert np.all(np.isfinite(m.pose)) and np.all(np.isfinite(m.trans))
+    G = skeleton.forward_kinematics(m.pose, m.trans)
+    feet = [NAMES.index("foot.L"), NAMES.index("foot.R")]
+    np.testing.assert_allclose(G[:, feet, 2, 3].min(axis=1), JOINTS[feet, 2].min(), atol=1e-9)
+    assert np.ptp(m.pose, axis=0).max() > 0.05, "the motion should move"
+
+
+def test_turn_goes_all_the_way_round(skeleton):
+    m = motions.turn_in_place(skeleton, 40)
+    yaw = m.pose[:, 0, 2]
+    assert yaw[0] == 0 and yaw[-1] == pytest.approx(2 * np.pi * 39 / 40)
+
+
+def test_arms_raised_lifts_wrists_above_head(skeleton):
+    m = motions.arms_raised(skeleton, 10)
+    G = skeleton.forward_kinematics(m.pose[-1], m.trans[-1])
+    assert G[NAMES.index("lowerarm01.L"), 2, 3] > G[NAMES.index("head"), 2, 3]
+
+
+def test_missing_joint_and_bad_frames_are_named(skeleton):
+    small = Skeleton(("root", "head"), np.array([-1, 0]), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="unknown joint name 'upperarm01.L'"):
+        motions.arms_raised(small, 4)
+    with pytest.raises(ValueError, match="frames: must be >= 1"):
+        motions.squat(skeleton, 0)
