@@ -30,6 +30,7 @@ COMMANDS = (
     Command("demo", "trioman.toolkit.demo", "run the whole pipeline on the embedded synthetic subject", "train"),
     Command("synth", "trioman.toolkit.synth.command", "render a synthetic subject (monocular video + poses + cameras)", "train"),
     Command("inspect", "trioman.runtime.inspect", "validate a subject folder and print a summary"),
+    Command("bench", "trioman.toolkit.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )
 
 # The packages each extra brings, by import name: checked before a command of that extra runs.

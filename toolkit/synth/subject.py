@@ -47,7 +47,7 @@ class SynthConfig:
     frames: int = 120  # total frames: training turn + test motions
     test_fraction: float = 0.2
     pose_noise_deg: float = 0.0  # std of the noise added to the stored (fitted) poses
-    focal: float = 1.55  # focal length in units of the image side
+    fill: float = 0.75  # fraction of the image height the rest body spans from the training camera
     texture_size: int = 1024
     supersample: int = 2
     body_model: str = "anny"
@@ -61,6 +61,8 @@ class SynthConfig:
             raise ValueError(f"test_fraction: must lie in (0, 1), got {self.test_fraction}")
         if not (0.0 <= self.pose_noise_deg <= 90.0):
             raise ValueError(f"pose_noise_deg: must lie in [0, 90] degrees, got {self.pose_noise_deg}")
+        if not 0.1 <= self.fill <= 0.95:
+            raise ValueError(f"fill: must lie in [0.1, 0.95], got {self.fill}")
         if self.supersample < 1 or self.texture_size < 64:
             raise ValueError(f"supersample/texture_size: got {self.supersample}/{self.texture_size}")
 
@@ -111,7 +113,7 @@ def plan_sequences(mesh: SkinnedMesh, cfg: SynthConfig) -> Sequences:
     n_test = cfg.num_test
     n_train = cfg.frames - n_test
     center = np.array([0.0, 0.0, 0.5 * (mesh.vertices[:, 2].min() + mesh.vertices[:, 2].max())])
-    K = intrinsics(cfg.focal * cfg.size, cfg.focal * cfg.size, cfg.size / 2, cfg.size / 2)
+    K = framing_intrinsics(mesh, cfg)
     parts = [motions.turn_in_place(sk, n_train)]
     views = [orbit_viewmat(center, np.deg2rad(TRAIN_VIEW[0]), np.deg2rad(TRAIN_VIEW[1]), TRAIN_VIEW[2])] * 1
     counts = np.full(len(TEST_VIEWS), n_test // len(TEST_VIEWS))
@@ -128,6 +130,13 @@ def plan_sequences(mesh: SkinnedMesh, cfg: SynthConfig) -> Sequences:
         split=["train"] * n_train + ["test"] * n_test,
         sequence=sum(([p.name] * p.num_frames for p in parts), []),
     )
+
+
+def framing_intrinsics(mesh: SkinnedMesh, cfg: SynthConfig) -> np.ndarray:
+    """Square-pixel K whose focal makes the rest body span ``cfg.fill`` of the image from the training camera."""
+    height = float(np.ptp(mesh.vertices[:, 2]))
+    f = cfg.fill * cfg.size * TRAIN_VIEW[2] / height
+    return intrinsics(f, f, cfg.size / 2, cfg.size / 2)
 
 
 def build_body(cfg: SynthConfig) -> tuple[SkinnedMesh, dict[str, float]]:

@@ -9,10 +9,10 @@ import numpy as np
 from tqdm import tqdm
 
 from trioman.runtime import motions
-from trioman.runtime.cameras import intrinsics, orbit_viewmat
+from trioman.runtime.cameras import orbit_viewmat
 from trioman.runtime.image_io import write_video
 from trioman.toolkit.synth.shading import render_textured
-from trioman.toolkit.synth.subject import SynthConfig, build_body
+from trioman.toolkit.synth.subject import SynthConfig, build_body, framing_intrinsics
 from trioman.toolkit.synth.texture import bake_texture
 
 
@@ -24,7 +24,7 @@ def write_turntable(cfg: SynthConfig, path: str | Path, frames: int = 96, fps: f
     pose = np.concatenate([c.pose for c in clips])[:frames]
     trans = np.concatenate([c.trans for c in clips])[:frames]
     center = np.array([0.0, 0.0, 0.5 * (mesh.vertices[:, 2].min() + mesh.vertices[:, 2].max())])
-    K = intrinsics(cfg.focal * cfg.size, cfg.focal * cfg.size, cfg.size / 2, cfg.size / 2)
+    K = framing_intrinsics(mesh, cfg)
 
     def render():
         for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
