@@ -3,6 +3,7 @@
 import hashlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -57,7 +58,13 @@ def test_mask_agrees_with_projected_posed_mesh(subject_dir):
         uv, z = project(s.posed_vertices(i, true_pose=True), s.viewmat[i].astype(np.float64), s.K[i].astype(np.float64))
         assert np.all(z > 0)
         j, k = np.clip(uv.astype(int), 0, 47).T
-        assert (s.mask(i)[k, j] > 0).mean() > 0.97  # vertices land on the subject
+        # Every vertex lands on the silhouette, up to one pixel for sub-pixel fingers.
+        near_subject = cv2.dilate(s.mask(i), np.ones((3, 3), np.uint8)) > 0
+        assert near_subject[k, j].mean() > 0.995
+        # And the silhouette is covered by the mesh: no rendered pixel far from every vertex.
+        hit = np.zeros_like(near_subject)
+        hit[k, j] = True
+        assert (s.mask(i) > 0.5)[~cv2.dilate(hit.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)].sum() == 0
 
 
 def test_same_seed_same_bytes(tmp_path, subject_dir):
