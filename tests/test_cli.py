@@ -26,18 +26,3 @@ def test_training_command_without_torch_names_the_extra(cmd, tmp_path):
 def test_no_command_prints_help(capsys):
     assert main([]) == 2
     assert "COMMAND" in capsys.readouterr().out
-
-
-def test_runtime_package_never_imports_torch():
-    proc = run_python(
-        """
-        import importlib, pkgutil, sys
-        import trioman.runtime as rt
-        for info in pkgutil.iter_modules(rt.__path__):
-            importlib.import_module(f"trioman.runtime.{info.name}")
-        assert "torch" not in sys.modules or sys.modules["torch"] is None
-        print("ok")
-        """,
-        block_torch=True,
-    )
-    assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr

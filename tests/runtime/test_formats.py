@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from trioman.runtime.cameras import look_at
 from trioman.runtime.formats import FormatError, Subject, load_subject, save_subject
 from trioman.runtime.image_io import write_png
 from trioman.runtime.skeleton import Skeleton, SkinnedMesh
@@ -37,27 +38,12 @@ def make_body() -> SkinnedMesh:
     return SkinnedMesh(skeleton, vertices, faces, skin_indices, skin_weights, uvs=uvs, uv_faces=faces.copy())
 
 
-def look_at(eye, target=(0.0, 0.0, 1.2), up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """OpenCV world->camera viewmat looking from eye at target."""
-    eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
-    fwd = target - eye
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, up)
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    R = np.stack([right, down, fwd])
-    M = np.eye(4)
-    M[:3, :3] = R
-    M[:3, 3] = -R @ eye
-    return M
-
-
 def make_fields(n: int = N) -> dict:
     rng = np.random.default_rng(0)
     body = make_body()
     poses_true = rng.normal(0, 0.3, (n, 3, 3)).astype(np.float32)
     K = np.tile(np.array([[20.0, 0, W / 2], [0, 20.0, H / 2], [0, 0, 1]], np.float32), (n, 1, 1))
-    viewmat = np.stack([look_at((3.0 * np.cos(a), 3.0 * np.sin(a), 1.2 + 0.1 * a)) for a in np.linspace(0, 1, n)]).astype(np.float32)
+    viewmat = np.stack([look_at((3.0 * np.cos(a), 3.0 * np.sin(a), 1.2 + 0.1 * a), (0.0, 0.0, 1.2)) for a in np.linspace(0, 1, n)]).astype(np.float32)
     return dict(
         body=body,
         poses=(poses_true + rng.normal(0, 0.05, poses_true.shape)).astype(np.float32),

@@ -87,12 +87,13 @@ def perturb_poses(pose: np.ndarray, deg: float, rng: np.random.Generator) -> np.
     return matrix_to_axis_angle(noise @ axis_angle_to_matrix(pose))
 
 
-def _yawed(m: motions.Motion, yaw: float) -> motions.Motion:
-    """The motion with the whole body turned by ``yaw`` about z (root rotation and translation)."""
+def _yawed(m: motions.Motion, yaw: float, root: np.ndarray) -> motions.Motion:
+    """The motion with the whole body turned by ``yaw`` about the world z axis. root: [3] rest root joint."""
     Rz = axis_angle_to_matrix(np.array([0.0, 0.0, yaw]))
     pose = m.pose.copy()
     pose[:, 0] = matrix_to_axis_angle(Rz @ axis_angle_to_matrix(pose[:, 0]))
-    return motions.Motion(m.name, pose, m.trans @ Rz.T)
+    # The root joint sits at root + trans; turn that point too.
+    return motions.Motion(m.name, pose, (root + m.trans) @ Rz.T - root)
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,11 +116,11 @@ def plan_sequences(mesh: SkinnedMesh, cfg: SynthConfig) -> Sequences:
     center = np.array([0.0, 0.0, 0.5 * (mesh.vertices[:, 2].min() + mesh.vertices[:, 2].max())])
     K = framing_intrinsics(mesh, cfg)
     parts = [motions.turn_in_place(sk, n_train)]
-    views = [orbit_viewmat(center, np.deg2rad(TRAIN_VIEW[0]), np.deg2rad(TRAIN_VIEW[1]), TRAIN_VIEW[2])] * 1
+    views = [orbit_viewmat(center, np.deg2rad(TRAIN_VIEW[0]), np.deg2rad(TRAIN_VIEW[1]), TRAIN_VIEW[2])]
     counts = np.full(len(TEST_VIEWS), n_test // len(TEST_VIEWS))
     counts[: n_test % len(TEST_VIEWS)] += 1
     for (name, (az, el, dist, yaw)), count in zip(TEST_VIEWS.items(), counts):
-        parts.append(_yawed(motions.TEST_MOTIONS[name](sk, int(count)), yaw))
+        parts.append(_yawed(motions.TEST_MOTIONS[name](sk, int(count)), yaw, sk.joints[0]))
         views.append(orbit_viewmat(center, np.deg2rad(az), np.deg2rad(el), dist))
     viewmat = np.concatenate([np.repeat(v[None], p.num_frames, 0) for v, p in zip(views, parts)])
     return Sequences(

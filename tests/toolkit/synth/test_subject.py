@@ -94,3 +94,16 @@ def test_refuses_to_overwrite(subject_dir):
 def test_bad_config_is_named(kwargs, field):
     with pytest.raises(ValueError, match=field):
         SynthConfig(**kwargs)
+
+
+def test_yaw_turns_the_posed_body_rigidly():
+    """Turning a motion about z moves every posed vertex by that rotation (pose and translation agree)."""
+    from trioman.runtime import motions
+    from trioman.runtime.rotations import axis_angle_to_matrix
+    from trioman.toolkit.synth.subject import _yawed, build_body
+
+    mesh, _ = build_body(SynthConfig(seed=1, **TINY))
+    m = motions.squat(mesh.skeleton, 3)
+    turned = _yawed(m, 1.1, mesh.skeleton.joints[0])
+    Rz = axis_angle_to_matrix(np.array([0.0, 0.0, 1.1]))
+    np.testing.assert_allclose(mesh.pose(turned.pose[2], turned.trans[2]), mesh.pose(m.pose[2], m.trans[2]) @ Rz.T, atol=1e-9)
