@@ -15,22 +15,9 @@ from __future__ import annotations
 import torch
 
 from trioman.toolkit.body.base import BodyModel, BodyOutput
+from trioman.toolkit.rotations import axis_angle_to_matrix
 
 PHENOTYPE_LABELS = ("gender", "age", "muscle", "weight", "height", "proportions")
-
-
-def _axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
-    """Rodrigues in torch with a Taylor branch for tiny angles. [..., 3] -> [..., 3, 3]."""
-    theta2 = (aa * aa).sum(-1)
-    small = theta2 < 1e-12
-    theta = torch.sqrt(torch.where(small, torch.ones_like(theta2), theta2))
-    a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
-    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / (theta * theta))
-    x, y, z = aa.unbind(-1)
-    zero = torch.zeros_like(x)
-    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(aa.shape[:-1] + (3, 3))
-    eye = torch.eye(3, dtype=aa.dtype, device=aa.device).expand(K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
 class AnnyBody(BodyModel):
@@ -77,7 +64,7 @@ class AnnyBody(BodyModel):
         dtype = self.canonical_vertices.dtype
         pose, trans = pose.to(dtype), trans.to(dtype)
         delta = torch.zeros(B, J, 4, 4, dtype=dtype, device=pose.device)
-        delta[..., :3, :3] = _axis_angle_to_matrix(pose)
+        delta[..., :3, :3] = axis_angle_to_matrix(pose)
         delta[..., 3, 3] = 1.0
         # The root delta is its world pose: rotate about the rest root joint, then translate.
         delta[:, 0, :3, 3] = self.rest_joints[0] + trans

@@ -155,7 +155,7 @@ def synthesize_subject(cfg: SynthConfig, out: str | Path, overwrite: bool = Fals
     stored = perturb_poses(seq.pose, cfg.pose_noise_deg, np.random.default_rng([cfg.seed, 2]))
 
     def frames():
-        for i in tqdm(range(cfg.frames), desc="synth: rendering", unit="frame", disable=not progress):
+        for i in tqdm(range(cfg.frames), desc="synth: rendering", unit="frame", disable=None if progress else True):
             verts = mesh.pose(seq.pose[i], seq.trans[i])
             yield render_textured(mesh, verts, texture, seq.viewmat[i], seq.K[i], cfg.size, cfg.size, cfg.supersample)
 

@@ -27,7 +27,7 @@ def write_turntable(cfg: SynthConfig, path: str | Path, frames: int = 96, fps: f
     K = framing_intrinsics(mesh, cfg)
 
     def render():
-        for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
+        for i in tqdm(range(frames), desc="turntable", unit="frame", disable=None if progress else True):
             view = orbit_viewmat(center, 2 * np.pi * i / frames, np.deg2rad(10.0), 3.4)
             rgb, mask = render_textured(mesh, mesh.pose(pose[i], trans[i]), texture, view, K, cfg.size, cfg.size, cfg.supersample)
             yield rgb + (1.0 - mask[..., None]) * 0.92  # light grey background

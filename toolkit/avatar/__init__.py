@@ -1,0 +1,1 @@
+"""ExAvatar-style Gaussian avatar: one Gaussian per (optionally subdivided) body-mesh vertex."""

@@ -1,0 +1,186 @@
+"""The Gaussian avatar (after ExAvatar, see shared/reference/exavatar.md).
+
+One Gaussian per canonical body-mesh vertex (optionally subdivided or subsampled). A triplane is
+sampled at the canonical positions and MLPs predict a position offset, a scale (isotropic by
+default) and a colour; pose-dependent MLPs add offset/scale/colour deltas from the body pose.
+Opacity is 1 and rotation the identity unless ``anisotropic``. Gaussians follow the body by LBS with
+the body's skinning weights. Two sets come out of each forward pass, as in ExAvatar: "plain"
+(pose-independent) and "refined" (with the pose-dependent deltas).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import nn
+
+from trioman.runtime.skeleton import SkinnedMesh
+from trioman.toolkit.avatar.mesh_ops import avatar_points, knn
+from trioman.toolkit.avatar.triplane import Triplane
+from trioman.toolkit.body.skinning import apply_transforms, blend_transforms, skinning_transforms
+from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matrix_to_rot6d
+
+# Joints whose rotations condition the pose-dependent MLPs: the body, not fingers, toes or eyes.
+_NOT_CONDITIONING = ("finger", "metacarpal", "toe", "eye", "root")
+
+
+@dataclass(frozen=True)
+class AvatarConfig:
+    subdivisions: int = 0  # midpoint subdivisions of the body mesh
+    keep: float = 1.0  # fraction of the points kept (seeded subset), for speed
+    triplane_channels: int = 32
+    triplane_res: int = 128
+    triplane_half_size: float = 1.0  # metres: the triplane covers a 2 m cube about the body centre
+    hidden: int = 128
+    anisotropic: bool = False
+    pose_dependent: bool = True
+    knn: int = 6  # neighbours for the Laplacian regularisers and the initial scale
+    scale_init: float = 0.75  # initial Gaussian scale, in units of the mean neighbour distance
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("triplane_channels", "triplane_res", "hidden", "knn"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
+
+
+class Gaussians(NamedTuple):
+    means: torch.Tensor  # [N, 3]
+    quats: torch.Tensor  # [N, 4] wxyz
+    scales: torch.Tensor  # [N, 3]
+    opacities: torch.Tensor  # [N]
+    colors: torch.Tensor  # [N, 3]
+
+
+class AvatarOutput(NamedTuple):
+    plain: Gaussians
+    refined: Gaussians
+    offset: torch.Tensor  # [N, 3] pose-independent position offset (canonical)
+    log_scale: torch.Tensor  # [N, S] pose-independent log-scale offset from the initial scale
+    delta_offset: torch.Tensor  # [N, 3] pose-dependent offset (zeros without pose dependence)
+
+
+def _mlp(in_dim: int, hidden: int, out_dim: int, layers: int = 2) -> nn.Sequential:
+    mods: list[nn.Module] = []
+    d = in_dim
+    for _ in range(layers):
+        mods += [nn.Linear(d, hidden), nn.ReLU()]
+        d = hidden
+    last = nn.Linear(d, out_dim)
+    nn.init.zeros_(last.weight)
+    nn.init.zeros_(last.bias)
+    return nn.Sequential(*mods, last)
+
+
+class PoseMLP(nn.Module):
+    """MLP on [point features, pose features] whose first layer splits so the pose part is computed once."""
+
+    def __init__(self, feat_dim: int, pose_dim: int, hidden: int, out_dim: int):
+        super().__init__()
+        self.feat_in = nn.Linear(feat_dim, hidden)
+        self.pose_in = nn.Linear(pose_dim, hidden, bias=False)
+        self.rest = _mlp(hidden, hidden, out_dim, layers=1)
+
+    def forward(self, feats: torch.Tensor, pose_feat: torch.Tensor) -> torch.Tensor:
+        return self.rest(torch.relu(self.feat_in(feats) + self.pose_in(pose_feat)))
+
+
+class GaussianAvatar(nn.Module):
+    def __init__(self, mesh: SkinnedMesh, cfg: AvatarConfig = AvatarConfig()):
+        super().__init__()
+        self.cfg = cfg
+        points, skin_idx, skin_w = avatar_points(mesh, cfg.subdivisions, cfg.keep, cfg.seed)
+        nbr, dist = knn(points, cfg.knn)
+        sk = mesh.skeleton
+        self.parents = sk.parents.tolist()
+        self.joint_names = sk.joint_names
+        self.register_buffer("canonical", torch.from_numpy(points).float())
+        self.register_buffer("skin_indices", torch.from_numpy(skin_idx).long())
+        self.register_buffer("skin_weights", torch.from_numpy(skin_w).float())
+        self.register_buffer("neighbors", torch.from_numpy(nbr))
+        self.register_buffer("joints", torch.from_numpy(sk.joints).float())
+        base = np.log(cfg.scale_init * dist.mean(axis=1).clip(1e-4, None))
+        self.register_buffer("base_log_scale", torch.from_numpy(base).float()[:, None])
+        cond = [j for j, n in enumerate(sk.joint_names) if not n.startswith(_NOT_CONDITIONING)]
+        self.register_buffer("pose_joints", torch.tensor(cond, dtype=torch.long))
+
+        gen = torch.Generator().manual_seed(cfg.seed)
+        center = 0.5 * (self.canonical.min(0).values + self.canonical.max(0).values)
+        self.triplane = Triplane(cfg.triplane_channels, cfg.triplane_res, center, cfg.triplane_half_size, generator=gen)
+        f = self.triplane.out_dim
+        s = 3 if cfg.anisotropic else 1
+        self.geo_net = _mlp(f, cfg.hidden, 3 + s + (4 if cfg.anisotropic else 0))
+        self.rgb_net = _mlp(f, cfg.hidden, 3)
+        if cfg.pose_dependent:
+            p = 6 * len(cond)
+            self.geo_offset_net = PoseMLP(f, p, cfg.hidden, 3 + s)
+            self.rgb_offset_net = PoseMLP(f, p, cfg.hidden, 3)
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.canonical.shape[0]
+
+    def pose_features(self, pose: torch.Tensor) -> torch.Tensor:
+        """[J, 3] axis-angle -> [6 * J_cond], zero at the rest pose."""
+        R = axis_angle_to_matrix(pose[self.pose_joints])
+        eye = torch.eye(3, dtype=R.dtype, device=R.device)
+        return (matrix_to_rot6d(R) - matrix_to_rot6d(eye)).reshape(-1)
+
+    def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
+        """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
+        feats = self.triplane(self.canonical)
+        geo = self.geo_net(feats)
+        s = 3 if self.cfg.anisotropic else 1
+        offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
+        rgb_logit = self.rgb_net(feats)
+        if self.cfg.pose_dependent:
+            pf = self.pose_features(pose)
+            dgeo = self.geo_offset_net(feats, pf)
+            d_offset, d_log_scale = dgeo[:, :3], dgeo[:, 3 : 3 + s]
+            d_rgb = self.rgb_offset_net(feats, pf)
+        else:
+            d_offset = torch.zeros_like(offset)
+            d_log_scale = torch.zeros_like(log_scale)
+            d_rgb = torch.zeros_like(rgb_logit)
+
+        A = skinning_transforms(self.parents, self.joints, pose[None], trans[None])
+        T = blend_transforms(A, self.skin_indices, self.skin_weights)[0]  # [N, 3, 4]
+        if self.cfg.anisotropic:
+            q_local = geo[:, 3 + s :] + torch.tensor([1.0, 0.0, 0.0, 0.0], device=geo.device)
+            R_local = _quat_to_matrix(q_local)
+            quats = matrix_to_quat(T[:, :, :3] @ R_local)
+        else:
+            quats = torch.zeros(self.num_gaussians, 4, device=geo.device)
+            quats[:, 0] = 1.0  # identity: isotropic Gaussians need no rotation
+        ones = torch.ones(self.num_gaussians, device=geo.device)
+
+        def gaussians(pos: torch.Tensor, log_s: torch.Tensor, logit: torch.Tensor) -> Gaussians:
+            means = apply_transforms(T[None], pos)[0]
+            scales = torch.exp((self.base_log_scale + log_s).clamp(-12.0, 2.0)).expand(-1, 3)
+            return Gaussians(means, quats, scales, ones, torch.sigmoid(logit))
+
+        plain_pos = self.canonical + offset
+        return AvatarOutput(
+            plain=gaussians(plain_pos, log_scale, rgb_logit),
+            refined=gaussians(plain_pos + d_offset, log_scale + d_log_scale, rgb_logit + d_rgb),
+            offset=offset,
+            log_scale=log_scale,
+            delta_offset=d_offset,
+        )
+
+    def laplacian(self, values: torch.Tensor) -> torch.Tensor:
+        """values: [N, C] -> [N, C], each value minus the mean of its neighbours."""
+        return values - values[self.neighbors].mean(1)
+
+
+def _quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], -1).reshape(q.shape[:-1] + (3, 3))
