@@ -29,6 +29,8 @@ class Command:
 COMMANDS = (
     Command("demo", "trioman.toolkit.demo", "run the whole pipeline on the embedded synthetic subject", "train"),
     Command("synth", "trioman.toolkit.synth.command", "render a synthetic subject (monocular video + poses + cameras)", "train"),
+    Command("train", "trioman.toolkit.train.command", "train a Gaussian avatar on a subject", "train"),
+    Command("eval", "trioman.toolkit.eval_command", "evaluate a trained avatar: metrics, grid, video", "train"),
     Command("inspect", "trioman.runtime.inspect", "validate a subject folder and print a summary"),
     Command("bench", "trioman.toolkit.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )

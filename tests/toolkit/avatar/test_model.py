@@ -1,0 +1,92 @@
+"""The Gaussian avatar: placement by LBS against the numpy reference, shapes, extremes, options."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from tests.runtime.test_skeleton import random_mesh  # noqa: E402
+from trioman.runtime.skeleton import Skeleton, SkinnedMesh  # noqa: E402
+from trioman.toolkit.avatar.mesh_ops import avatar_points, subdivide  # noqa: E402
+from trioman.toolkit.avatar.model import AvatarConfig, GaussianAvatar  # noqa: E402
+
+SMALL = dict(triplane_channels=4, triplane_res=8, hidden=16, knn=3)
+
+
+def grid_mesh(J: int = 4) -> SkinnedMesh:
+    """A small closed-ish surface (an icosphere) skinned to a chain of joints along z."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    verts = np.asarray(sphere.vertices)
+    names = ("root", "spine01", "neck01", "head")[:J]
+    joints = np.stack([np.zeros(J), np.zeros(J), np.linspace(-0.3, 0.3, J)], 1)
+    sk = Skeleton(names, np.arange(-1, J - 1), joints)
+    near = np.argsort(np.abs(verts[:, 2:3] - joints[None, :, 2]), axis=1)[:, :2]
+    w = np.array([0.7, 0.3], np.float32)
+    return SkinnedMesh(sk, verts, np.asarray(sphere.faces), near, np.tile(w, (len(verts), 1)))
+
+
+def test_gaussians_follow_the_numpy_lbs_at_zero_offsets():
+    mesh = random_mesh(2, J=6, V=60)
+    model = GaussianAvatar(mesh, AvatarConfig(**SMALL))
+    rng = np.random.default_rng(0)
+    pose, trans = rng.normal(size=(6, 3)), rng.normal(size=3)
+    out = model(torch.from_numpy(pose).float(), torch.from_numpy(trans).float())
+    # The offset heads start at zero, so Gaussians sit on the posed vertices.
+    np.testing.assert_allclose(out.refined.means.detach().numpy(), mesh.pose(pose, trans), atol=1e-5)
+    np.testing.assert_allclose(out.plain.means.detach().numpy(), mesh.pose(pose, trans), atol=1e-5)
+
+
+def test_attribute_shapes_and_ranges():
+    mesh = grid_mesh()
+    model = GaussianAvatar(mesh, AvatarConfig(**SMALL))
+    out = model(torch.zeros(4, 3), torch.zeros(3))
+    N = mesh.num_vertices
+    for g in (out.plain, out.refined):
+        assert g.means.shape == (N, 3) and g.quats.shape == (N, 4) and g.scales.shape == (N, 3)
+        assert torch.all(g.opacities == 1) and torch.all((g.colors > 0) & (g.colors < 1))
+        assert torch.all(g.scales > 0) and torch.all(g.scales[:, 0] == g.scales[:, 1])  # isotropic
+
+
+def test_anisotropic_and_no_pose_dependence():
+    mesh = grid_mesh()
+    aniso = GaussianAvatar(mesh, AvatarConfig(anisotropic=True, **SMALL))
+    out = aniso(torch.full((4, 3), 0.3), torch.zeros(3))
+    np.testing.assert_allclose(out.refined.quats.norm(dim=-1).detach().numpy(), 1.0, atol=1e-6)
+    plain = GaussianAvatar(mesh, AvatarConfig(pose_dependent=False, **SMALL))
+    out = plain(torch.full((4, 3), 0.3), torch.zeros(3))
+    assert torch.equal(out.plain.means, out.refined.means) and torch.equal(out.plain.colors, out.refined.colors)
+    assert not hasattr(plain, "geo_offset_net")
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, np.pi - 1e-6, 50.0])
+def test_extreme_poses_give_finite_gaussians_and_gradients(angle):
+    mesh = grid_mesh()
+    model = GaussianAvatar(mesh, AvatarConfig(**SMALL))
+    pose = torch.full((4, 3), angle / np.sqrt(3), requires_grad=True)
+    out = model(pose, torch.tensor([1e3, -1e3, 0.0]))
+    loss = sum(t.sum() for t in (*out.refined[:3], out.refined.colors))
+    loss.backward()
+    assert all(torch.isfinite(t).all() for t in out.refined)
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+
+
+def test_subdivision_and_subsampling():
+    mesh = grid_mesh()
+    verts, faces, source = subdivide(mesh.vertices, mesh.faces)
+    E = len(np.unique(np.sort(np.concatenate([mesh.faces[:, [0, 1]], mesh.faces[:, [1, 2]], mesh.faces[:, [2, 0]]]), 1), axis=0))
+    assert len(verts) == mesh.num_vertices + E and len(faces) == 4 * len(mesh.faces)
+    # Each midpoint lies halfway along the edge to its skinning source.
+    mids = np.arange(mesh.num_vertices, len(verts))
+    assert np.all(np.linalg.norm(verts[mids] - mesh.vertices[source[mids]], axis=1) > 0)
+    pts, idx, w = avatar_points(mesh, subdivisions=1, keep=0.5, seed=1)
+    assert len(pts) == round(0.5 * len(verts)) and idx.shape == (len(pts), 2)
+    np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-6)
+    with pytest.raises(ValueError, match="keep"):
+        avatar_points(mesh, keep=0.0)
+
+
+def test_laplacian_of_constant_is_zero():
+    model = GaussianAvatar(grid_mesh(), AvatarConfig(**SMALL))
+    assert torch.allclose(model.laplacian(torch.ones(model.num_gaussians, 3)), torch.zeros(1))

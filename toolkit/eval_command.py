@@ -1,0 +1,29 @@
+"""``trioman eval RUN``: metrics and pictures for a trained avatar (standard-library imports only here)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="run folder written by trioman train")
+    parser.add_argument("--split", default="test", choices=("train", "test"), help="frames to evaluate (default test)")
+    parser.add_argument("--out", default=None, help="report folder (default RUN/eval_SPLIT)")
+    parser.add_argument("--no-video", action="store_true", help="skip the MP4")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from trioman.toolkit.evaluate import evaluate
+    from trioman.toolkit.train.command import load_lpips_or_say_why
+
+    out = Path(args.out) if args.out else Path(args.run) / f"eval_{args.split}"
+    summary = evaluate(args.run, args.split, out, lpips=load_lpips_or_say_why("eval"), progress=not args.quiet,
+                       video=not args.no_video)
+    m = summary["mean"]
+    print(f"eval: {summary['frames']} {args.split} frames at step {summary['step']}: PSNR {m['psnr']:.2f} dB, "
+          f"SSIM {m['ssim']:.4f} (masked protocol); unmasked PSNR {m['psnr_unmasked']:.2f} dB")
+    print(f"eval: report {out / 'report.md'}, grid {out / 'grid.png'}" + ("" if args.no_video else f", video {out / 'video.mp4'}"))
+    return 0

@@ -1,0 +1,1 @@
+"""Avatar training: configs and presets, frame data, atomic checkpoints, the optimisation loop."""

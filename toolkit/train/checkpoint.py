@@ -1,0 +1,57 @@
+"""Atomic checkpoints: written to a temporary sibling and renamed, so a kill at any moment loses
+no finished checkpoint. Loaded with weights_only=True (data, never code)."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from trioman.runtime.image_io import atomic_path
+
+_NAME = re.compile(r"^ckpt_(\d{7})\.pt$")
+
+
+def checkpoint_path(run: Path, step: int) -> Path:
+    return Path(run) / "checkpoints" / f"ckpt_{step:07d}.pt"
+
+
+def save_checkpoint(run: Path, step: int, state: dict[str, Any], keep: int = 2) -> Path:
+    """Write ``state`` for ``step`` and keep only the newest ``keep`` checkpoints."""
+    path = checkpoint_path(run, step)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+    for old in list_checkpoints(run)[:-keep]:
+        old.unlink(missing_ok=True)
+    return path
+
+
+def list_checkpoints(run: Path) -> list[Path]:
+    """Finished checkpoints, oldest first (temporary files are ignored)."""
+    folder = Path(run) / "checkpoints"
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if _NAME.match(p.name))
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such checkpoint")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # corrupt, truncated, or not a checkpoint at all
+        raise ValueError(f"{path}: not a readable checkpoint ({type(err).__name__}: {err})") from None
+    for key in ("step", "model", "config"):
+        if key not in state:
+            raise ValueError(f"{path}: checkpoint has no {key!r} entry")
+    return state
+
+
+def latest_checkpoint(run: Path) -> Path | None:
+    found = list_checkpoints(run)
+    return found[-1] if found else None

@@ -1,0 +1,74 @@
+"""Training configuration: one dataclass, named presets, saved resolved with every run."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from trioman.toolkit.avatar.model import AvatarConfig
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    l1: float = 0.8
+    ssim: float = 0.2
+    lpips: float = 0.2  # used only when LPIPS backbone weights are available locally
+    offset: float = 10.0  # L2 of the canonical position offsets (m^2)
+    scale: float = 0.1  # L2 of the log-scale offsets
+    lap_offset: float = 1e4  # Laplacian of the position offsets
+    lap_scale: float = 1.0  # Laplacian of the log-scale offsets
+    delta_offset: float = 100.0  # L2 of the pose-dependent offsets
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    preset: str = "quick"
+    iterations: int = 1500
+    lr: float = 1e-3
+    lr_decay_at: tuple[float, float] = (0.75, 0.95)  # x0.1 then x0.01 at these fractions of the run
+    image_scale: float = 1.0  # train on images resized by this factor (K scaled to match)
+    supervise_plain: bool = False  # also render and supervise the pose-independent set (ExAvatar does)
+    random_background: bool = True
+    checkpoint_every: int = 250
+    keep_checkpoints: int = 2
+    seed: int = 0
+    weights: LossWeights = field(default_factory=LossWeights)
+    avatar: AvatarConfig = field(default_factory=AvatarConfig)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ValueError(f"iterations: must be >= 1, got {self.iterations}")
+        if not 0.05 <= self.image_scale <= 1.0:
+            raise ValueError(f"image_scale: must lie in [0.05, 1], got {self.image_scale}")
+        if not self.lr > 0:
+            raise ValueError(f"lr: must be > 0, got {self.lr}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
+        d = dict(d)
+        d["weights"] = LossWeights(**d.get("weights", {}))
+        avatar = dict(d.get("avatar", {}))
+        d["avatar"] = AvatarConfig(**avatar)
+        d["lr_decay_at"] = tuple(d.get("lr_decay_at", (0.75, 0.95)))
+        return cls(**d)
+
+    def digest(self) -> str:
+        return hashlib.sha1(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
+
+
+PRESETS: dict[str, TrainConfig] = {
+    "quick": TrainConfig(preset="quick", iterations=1500, avatar=AvatarConfig(triplane_res=64)),
+    "full": TrainConfig(preset="full", iterations=6000, supervise_plain=True, avatar=AvatarConfig(triplane_res=128)),
+}
+
+
+def preset(name: str, **overrides: Any) -> TrainConfig:
+    if name not in PRESETS:
+        raise ValueError(f"preset: unknown preset {name!r}; available: {sorted(PRESETS)}")
+    return dataclasses.replace(PRESETS[name], **overrides)

@@ -1,0 +1,166 @@
+"""The avatar optimisation loop: losses, schedule, progress, checkpoints and resume."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from trioman import __version__
+from trioman.runtime.formats import load_subject
+from trioman.runtime.image_io import atomic_write_text
+from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
+from trioman.toolkit.metrics import psnr, ssim
+from trioman.toolkit.render import rasterize
+from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.train.data import FrameSet, load_frames
+
+LOG_HEADER = "step,seconds,loss,psnr,lr\n"
+
+
+def render(g: Gaussians, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int,
+           background: torch.Tensor) -> torch.Tensor:
+    """-> [H, W, 3] image of the Gaussians over ``background``."""
+    return rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, viewmat, K, width, height, background=background).rgb
+
+
+def learning_rate(cfg: TrainConfig, step: int) -> float:
+    lr = cfg.lr
+    for frac in cfg.lr_decay_at:
+        if step >= frac * cfg.iterations:
+            lr *= 0.1
+    return lr
+
+
+def photometric(pred: torch.Tensor, gt: torch.Tensor, cfg: TrainConfig, lpips=None) -> torch.Tensor:
+    """pred, gt: [H, W, 3] -> L1 0.8 + (1 - SSIM) 0.2 (+ LPIPS 0.2)."""
+    p, g = pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
+    w = cfg.weights
+    loss = w.l1 * (pred - gt).abs().mean() + w.ssim * (1 - ssim(p, g)).mean()
+    if lpips is not None:
+        loss = loss + w.lpips * lpips(p, g).mean()
+    return loss
+
+
+def regularisers(model: GaussianAvatar, out, cfg: TrainConfig) -> torch.Tensor:
+    w = cfg.weights
+    reg = w.offset * out.offset.square().sum(-1).mean() + w.scale * out.log_scale.square().mean()
+    reg = reg + w.lap_offset * model.laplacian(out.offset).square().sum(-1).mean()
+    reg = reg + w.lap_scale * model.laplacian(out.log_scale).square().mean()
+    if model.cfg.pose_dependent:
+        reg = reg + w.delta_offset * out.delta_offset.square().sum(-1).mean()
+    return reg
+
+
+def _prepare_run(run: Path, subject_path: Path, cfg: TrainConfig, resume: bool) -> TrainConfig:
+    cfg_file = run / "config.json"
+    if cfg_file.exists():
+        if not resume:
+            raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
+        saved = json.loads(cfg_file.read_text())
+        return TrainConfig.from_dict(saved["train"])
+    run.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(cfg_file, json.dumps({
+        "trioman_version": __version__, "subject": str(subject_path.resolve()), "config_hash": cfg.digest(),
+        "train": cfg.to_dict(),
+    }, indent=2) + "\n")
+    return cfg
+
+
+def _trim_log(log: Path, step: int) -> None:
+    """Keep the log lines up to ``step`` (a resumed run rewrites what came after its checkpoint)."""
+    if not log.exists():
+        atomic_write_text(log, LOG_HEADER)
+        return
+    lines = log.read_text().splitlines(keepends=True)
+    kept = [lines[0]] + [ln for ln in lines[1:] if ln.strip() and int(ln.split(",")[0]) <= step]
+    atomic_write_text(log, "".join(kept))
+
+
+def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: bool = False, progress: bool = True,
+          stop_after: int | None = None, lpips=None, on_checkpoint: Callable[[int, Path], None] | None = None) -> Path:
+    """Train an avatar on the subject's training frames into the folder ``run``.
+
+    ``stop_after`` ends the loop after that many steps of this call (to test interruption);
+    ``on_checkpoint(step, path)`` is called after each checkpoint (benchmarks evaluate there).
+    """
+    run, subject_path = Path(run), Path(subject_path)
+    if not resume and (run / "config.json").exists():
+        raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
+    subject = load_subject(subject_path)
+    cfg = _prepare_run(run, subject_path, cfg, resume)
+    frames = load_frames(subject, "train", cfg.image_scale)
+    model = GaussianAvatar(subject.body, cfg.avatar)
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=1e-15)
+    rng = np.random.default_rng(cfg.seed)
+    torch_gen = torch.Generator().manual_seed(cfg.seed)
+    step, seconds = 0, 0.0
+    ckpt = latest_checkpoint(run) if resume else None
+    if ckpt is not None:
+        state = load_checkpoint(ckpt)
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        step, seconds = int(state["step"]), float(state["seconds"])
+        rng.bit_generator.state = json.loads(state["numpy_rng"])
+        torch_gen.set_state(state["torch_rng"])
+    log = run / "train_log.csv"
+    _trim_log(log, step)
+
+    def checkpoint() -> None:
+        path = save_checkpoint(run, step, {
+            "step": step, "seconds": seconds, "model": model.state_dict(), "optimizer": optimizer.state_dict(),
+            "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
+            "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
+        }, keep=cfg.keep_checkpoints)
+        if on_checkpoint is not None:
+            on_checkpoint(step, path)
+
+    bar = tqdm(total=cfg.iterations, initial=step, desc="train", unit="it", disable=None if progress else True)
+    done_here = 0
+    run_psnr = None
+    with log.open("a") as log_file:
+        while step < cfg.iterations and (stop_after is None or done_here < stop_after):
+            t0 = time.perf_counter()
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate(cfg, step)
+            loss, p = _step(model, optimizer, frames, cfg, rng, torch_gen, lpips)
+            step += 1
+            done_here += 1
+            seconds += time.perf_counter() - t0
+            run_psnr = p if run_psnr is None else 0.9 * run_psnr + 0.1 * p
+            log_file.write(f"{step},{seconds:.3f},{loss:.6f},{p:.4f},{learning_rate(cfg, step - 1):.3g}\n")
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{run_psnr:.2f}")
+            if step % cfg.checkpoint_every == 0 or step == cfg.iterations:
+                log_file.flush()
+                checkpoint()
+    bar.close()
+    return run
+
+
+def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, frames: FrameSet, cfg: TrainConfig,
+          rng: np.random.Generator, torch_gen: torch.Generator, lpips) -> tuple[float, float]:
+    i = int(rng.integers(len(frames)))
+    bg = torch.rand(3, generator=torch_gen) if cfg.random_background else torch.ones(3)
+    gt = frames.images[i] + (1 - frames.masks[i])[..., None] * bg  # premultiplied GT over the same colour
+    out = model(frames.poses[i], frames.trans[i])
+    sets = [out.refined] + ([out.plain] if cfg.supervise_plain else [])
+    loss = torch.zeros(())
+    pred = None
+    for g in sets:
+        img = render(g, frames.viewmat[i], frames.K[i], frames.width, frames.height, bg)
+        pred = img if pred is None else pred
+        loss = loss + photometric(img, gt, cfg, lpips)
+    loss = loss + regularisers(model, out, cfg)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    with torch.no_grad():
+        p = float(psnr(pred.permute(2, 0, 1)[None].clamp(0, 1), gt.permute(2, 0, 1)[None])[0])
+    return float(loss), p
