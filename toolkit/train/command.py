@@ -36,10 +36,9 @@ def run(args: argparse.Namespace) -> int:
 
 def load_lpips_or_say_why(command: str):
     """The LPIPS (AlexNet) model when its weights are available locally, else None after saying so once."""
-    from trioman.toolkit.lpips import LPIPS, find_lpips_weights
+    from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
 
-    found = find_lpips_weights()
-    if found is None:
-        print(f"{command}: LPIPS not used: no local AlexNet/LPIPS weights (set TRIOMAN_LPIPS_DIR to a folder holding them)")
-        return None
-    return LPIPS.from_files(*found)
+    model = load_lpips()
+    if model is None:
+        print(f"{command}: {NOT_FOUND_MESSAGE}")
+    return model
