@@ -63,6 +63,7 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
 def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
              progress: bool = True, grid_frames: int = 6, video: bool = True) -> dict:
     """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary."""
+    torch.set_flush_denormal(True)  # see train(): subnormals are slow on CPU
     model, subject, cfg, step = load_run(run)
     out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)

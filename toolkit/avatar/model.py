@@ -61,6 +61,7 @@ class AvatarOutput(NamedTuple):
     offset: torch.Tensor  # [N, 3] pose-independent position offset (canonical)
     log_scale: torch.Tensor  # [N, S] pose-independent log-scale offset from the initial scale
     delta_offset: torch.Tensor  # [N, 3] pose-dependent offset (zeros without pose dependence)
+    delta_rgb: torch.Tensor  # [N, 3] pose-dependent colour logits (zeros without pose dependence)
 
 
 def _mlp(in_dim: int, hidden: int, out_dim: int, layers: int = 2) -> nn.Sequential:
@@ -107,17 +108,19 @@ class GaussianAvatar(nn.Module):
         cond = [j for j, n in enumerate(sk.joint_names) if not n.startswith(_NOT_CONDITIONING)]
         self.register_buffer("pose_joints", torch.tensor(cond, dtype=torch.long))
 
-        gen = torch.Generator().manual_seed(cfg.seed)
-        center = 0.5 * (self.canonical.min(0).values + self.canonical.max(0).values)
-        self.triplane = Triplane(cfg.triplane_channels, cfg.triplane_res, center, cfg.triplane_half_size, generator=gen)
-        f = self.triplane.out_dim
-        s = 3 if cfg.anisotropic else 1
-        self.geo_net = _mlp(f, cfg.hidden, 3 + s + (4 if cfg.anisotropic else 0))
-        self.rgb_net = _mlp(f, cfg.hidden, 3)
-        if cfg.pose_dependent:
-            p = 6 * len(cond)
-            self.geo_offset_net = PoseMLP(f, p, cfg.hidden, 3 + s)
-            self.rgb_offset_net = PoseMLP(f, p, cfg.hidden, 3)
+        # Same seed, same initial weights, without touching the caller's global RNG.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(cfg.seed)
+            center = 0.5 * (self.canonical.min(0).values + self.canonical.max(0).values)
+            self.triplane = Triplane(cfg.triplane_channels, cfg.triplane_res, center, cfg.triplane_half_size)
+            f = self.triplane.out_dim
+            s = 3 if cfg.anisotropic else 1
+            self.geo_net = _mlp(f, cfg.hidden, 3 + s + (4 if cfg.anisotropic else 0))
+            self.rgb_net = _mlp(f, cfg.hidden, 3)
+            if cfg.pose_dependent:
+                p = 6 * len(cond)
+                self.geo_offset_net = PoseMLP(f, p, cfg.hidden, 3 + s)
+                self.rgb_offset_net = PoseMLP(f, p, cfg.hidden, 3)
 
     @property
     def num_gaussians(self) -> int:
@@ -169,6 +172,7 @@ class GaussianAvatar(nn.Module):
             offset=offset,
             log_scale=log_scale,
             delta_offset=d_offset,
+            delta_rgb=d_rgb,
         )
 
     def laplacian(self, values: torch.Tensor) -> torch.Tensor:

@@ -9,10 +9,9 @@ import torch.nn.functional as F
 class Triplane(torch.nn.Module):
     """Features for points inside an axis-aligned cube (``center`` +- ``half_size`` metres)."""
 
-    def __init__(self, channels: int, resolution: int, center: torch.Tensor, half_size: float, init_std: float = 0.1,
-                 generator: torch.Generator | None = None):
+    def __init__(self, channels: int, resolution: int, center: torch.Tensor, half_size: float, init_std: float = 0.1):
         super().__init__()
-        planes = torch.randn(3, channels, resolution, resolution, generator=generator) * init_std
+        planes = torch.randn(3, channels, resolution, resolution) * init_std
         self.planes = torch.nn.Parameter(planes)
         self.register_buffer("center", center.float().clone())
         self.half_size = float(half_size)

@@ -21,6 +21,7 @@ class LossWeights:
     lap_offset: float = 1e4  # Laplacian of the position offsets
     lap_scale: float = 1.0  # Laplacian of the log-scale offsets
     delta_offset: float = 100.0  # L2 of the pose-dependent offsets
+    delta_rgb: float = 0.1  # L2 of the pose-dependent colour logits (novel poses extrapolate them)
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ class TrainConfig:
 
 
 PRESETS: dict[str, TrainConfig] = {
-    "quick": TrainConfig(preset="quick", iterations=1500, avatar=AvatarConfig(triplane_res=64)),
+    "quick": TrainConfig(preset="quick", iterations=1500, avatar=AvatarConfig(triplane_res=64, hidden=64)),
     "full": TrainConfig(preset="full", iterations=6000, supervise_plain=True, avatar=AvatarConfig(triplane_res=128)),
 }
 

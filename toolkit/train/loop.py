@@ -55,6 +55,7 @@ def regularisers(model: GaussianAvatar, out, cfg: TrainConfig) -> torch.Tensor:
     reg = reg + w.lap_scale * model.laplacian(out.log_scale).square().mean()
     if model.cfg.pose_dependent:
         reg = reg + w.delta_offset * out.delta_offset.square().sum(-1).mean()
+        reg = reg + w.delta_rgb * out.delta_rgb.square().sum(-1).mean()
     return reg
 
 
@@ -91,6 +92,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     ``on_checkpoint(step, path)`` is called after each checkpoint (benchmarks evaluate there).
     """
     run, subject_path = Path(run), Path(subject_path)
+    torch.set_flush_denormal(True)  # subnormal floats in the MLPs cost up to 10x on CPU
     if not resume and (run / "config.json").exists():
         raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
     subject = load_subject(subject_path)
@@ -163,4 +165,4 @@ def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, frames: Frame
     optimizer.step()
     with torch.no_grad():
         p = float(psnr(pred.permute(2, 0, 1)[None].clamp(0, 1), gt.permute(2, 0, 1)[None])[0])
-    return float(loss), p
+    return float(loss.detach()), p

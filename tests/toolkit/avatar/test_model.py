@@ -90,3 +90,14 @@ def test_subdivision_and_subsampling():
 def test_laplacian_of_constant_is_zero():
     model = GaussianAvatar(grid_mesh(), AvatarConfig(**SMALL))
     assert torch.allclose(model.laplacian(torch.ones(model.num_gaussians, 3)), torch.zeros(1))
+
+
+def test_same_seed_same_initial_weights_and_global_rng_untouched():
+    torch.manual_seed(123)
+    before = torch.rand(3)
+    torch.manual_seed(123)
+    a = GaussianAvatar(grid_mesh(), AvatarConfig(seed=4, **SMALL))
+    assert torch.equal(torch.rand(3), before), "model construction must not consume the global RNG"
+    b = GaussianAvatar(grid_mesh(), AvatarConfig(seed=4, **SMALL))
+    for (k, va), vb in zip(a.state_dict().items(), b.state_dict().values()):
+        assert torch.equal(va, vb), k

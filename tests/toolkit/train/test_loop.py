@@ -73,7 +73,7 @@ def test_evaluate_writes_every_report(subject, tmp_path):
     out = run / "eval_test"
     for name in ("metrics.csv", "summary.json", "report.md", "grid.png", "video.mp4"):
         assert (out / name).stat().st_size > 0, name
-    assert summary["frames"] == 2 and summary["lpips"].startswith("not computed")
+    assert summary["frames"] == 4 and summary["lpips"].startswith("not computed")
     assert np.isfinite(summary["mean"]["psnr"]) and 0 < summary["mean"]["ssim"] <= 1
     # The masked protocol puts both images on white with the GT mask: it can only agree more than unmasked.
     assert summary["mean"]["psnr"] >= summary["mean"]["psnr_unmasked"] - 1e-6

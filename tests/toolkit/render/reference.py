@@ -1,0 +1,140 @@
+"""Brute-force Gaussian splatting oracle (numpy): every Gaussian at every pixel, written plainly.
+
+The semantics of DESIGN.md "Conventions" (gsplat's), for the torch rasterizer now and the numpy
+runtime renderer later:
+
+- Sigma = R S S^T R^T (quaternion wxyz normalised, zero -> identity); camera mean m_c = R_v m + t_v,
+  Sigma_c = R_v Sigma R_v^T;
+- cull: centre depth z < near or z > far; opacity < 1/255 (compared in float32);
+- EWA: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]] with x' = z clamp(x/z, -lim_x_neg, lim_x_pos),
+  lim_x_pos = (W - cx)/fx + 0.3 tan_fovx, lim_x_neg = cx/fx + 0.3 tan_fovx, tan_fovx = 0.5 W / fx
+  (y alike); Sigma_2d = J Sigma_c J^T + 0.3 I; conic = Sigma_2d^-1 = (A, B, C);
+  mean2d = (K[:2] m_c) / z;
+- radius box: extent = min(3.33, sqrt(2 ln(255 o))), r = ceil(extent sqrt(Sigma_2d diagonal)); cull
+  when both radii are 0 or the box [mean2d - r, mean2d + r] lies entirely outside [0, W] x [0, H];
+  a pixel centre (j + 0.5, i + 0.5) sees the Gaussian only inside the closed box |dx| <= r_x, |dy| <= r_y;
+- per pixel, front to back by centre depth (ties by index): sigma = 0.5 (A dx^2 + C dy^2) + B dx dy;
+  skip if sigma < 0; alpha = min(0.99, o exp(-sigma)); skip if float32(alpha) < float32(1/255);
+  next_T = T (1 - alpha) in float32 on float32 values; if next_T <= 1e-4 stop, this Gaussian excluded;
+  else w = alpha T, C += w c, D += w z, T = next_T;
+- rgb = C + T background, alpha = 1 - T, depth = D (the alpha-weighted depth sum, not normalised).
+
+The stop test runs on a float32 T (``T32``) exactly as written; the colour sums use float64 values of
+alpha and T (``dtype``, np.longdouble for extra precision on extreme scenes).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+F32 = np.float32
+ALPHA_MIN32 = F32(1.0 / 255.0)
+T_MIN32 = F32(1e-4)
+ONE32 = F32(1.0)
+
+
+def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
+    n = np.sqrt(np.sum(q * q))
+    if n == 0:
+        return np.eye(3, dtype=q.dtype)
+    w, x, y, z = q / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ], dtype=q.dtype)
+
+
+def project_reference(means, quats, scales, opacities, viewmat, K, width, height, near_plane=0.01,
+                      far_plane=1e10, dtype=np.float64):
+    """Per-Gaussian projection. -> list of dicts (one per input, None where culled)."""
+    means, quats, scales, opacities, viewmat, K = (np.asarray(x, dtype=dtype) for x in
+                                                   (means, quats, scales, opacities, viewmat, K))
+    Rv, tv = viewmat[:3, :3], viewmat[:3, 3]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    tan_fovx, tan_fovy = 0.5 * width / fx, 0.5 * height / fy
+    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
+    lim_x_neg = cx / fx + 0.3 * tan_fovx
+    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
+    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    out = []
+    for i in range(len(means)):
+        mc = Rv @ means[i] + tv
+        x, y, z = mc
+        o = opacities[i]
+        if z < near_plane or z > far_plane or F32(o) < ALPHA_MIN32:
+            out.append(None)
+            continue
+        R = quat_to_rotmat(quats[i])
+        S = np.diag(scales[i])
+        Sigma = R @ S @ S.T @ R.T
+        Sc = Rv @ Sigma @ Rv.T
+        xc = z * min(max(x / z, -lim_x_neg), lim_x_pos)
+        yc = z * min(max(y / z, -lim_y_neg), lim_y_pos)
+        J = np.array([[fx / z, 0, -fx * xc / z ** 2], [0, fy / z, -fy * yc / z ** 2]], dtype=dtype)
+        cov = J @ Sc @ J.T + 0.3 * np.eye(2, dtype=dtype)
+        det = cov[0, 0] * cov[1, 1] - cov[0, 1] * cov[1, 0]
+        mean2d = (K[:2] @ mc) / z
+        extent = min(dtype(3.33), np.sqrt(max(dtype(0), 2 * np.log(o * 255))))
+        rx, ry = np.ceil(extent * np.sqrt(cov[0, 0])), np.ceil(extent * np.sqrt(cov[1, 1]))
+        if det <= 0 or (rx <= 0 and ry <= 0):
+            out.append(None)
+            continue
+        if (mean2d[0] + rx <= 0 or mean2d[0] - rx >= width or mean2d[1] + ry <= 0 or mean2d[1] - ry >= height):
+            out.append(None)
+            continue
+        conic = np.array([cov[1, 1] / det, -cov[0, 1] / det, cov[0, 0] / det], dtype=dtype)
+        out.append(dict(mean2d=mean2d, conic=conic, depth=z, radii=(rx, ry), opacity=o, cov2d=cov))
+    return out
+
+
+def rasterize_reference(
+    means: np.ndarray,  # [N, 3]
+    quats: np.ndarray,  # [N, 4] wxyz
+    scales: np.ndarray,  # [N, 3]
+    opacities: np.ndarray,  # [N]
+    colors: np.ndarray,  # [N, 3]
+    viewmat: np.ndarray,  # [4, 4]
+    K: np.ndarray,  # [3, 3]
+    width: int,
+    height: int,
+    background: np.ndarray | None = None,  # [3]
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    dtype=np.float64,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """-> (rgb [H, W, 3], alpha [H, W], depth [H, W]) in ``dtype``."""
+    colors = np.asarray(colors, dtype=dtype).reshape(-1, 3)
+    bg = np.zeros(3, dtype=dtype) if background is None else np.asarray(background, dtype=dtype)
+    proj = project_reference(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, dtype)
+    px = (np.arange(width, dtype=dtype) + dtype(0.5))[None, :] * np.ones((height, 1), dtype=dtype)
+    py = (np.arange(height, dtype=dtype) + dtype(0.5))[:, None] * np.ones((1, width), dtype=dtype)
+    C = np.zeros((height, width, 3), dtype=dtype)
+    D = np.zeros((height, width), dtype=dtype)
+    T = np.ones((height, width), dtype=dtype)
+    T32 = np.ones((height, width), dtype=F32)
+    done = np.zeros((height, width), dtype=bool)
+    visible = [i for i, p in enumerate(proj) if p is not None]
+    order = sorted(visible, key=lambda i: (proj[i]["depth"], i))  # front to back, ties by index
+    for i in order:
+        p = proj[i]
+        mx, my = p["mean2d"]
+        rx, ry = p["radii"]
+        A, B, Cc = p["conic"]
+        dx, dy = px - mx, py - my
+        in_box = (np.abs(dx) <= rx) & (np.abs(dy) <= ry)
+        sigma = 0.5 * (A * dx * dx + Cc * dy * dy) + B * dx * dy
+        alpha = np.minimum(dtype(0.99), p["opacity"] * np.exp(-sigma))
+        a32 = alpha.astype(F32)
+        use = in_box & ~done & (sigma >= 0) & (a32 >= ALPHA_MIN32)
+        next_T32 = T32 * (ONE32 - a32)  # float32 arithmetic
+        stop = use & (next_T32 <= T_MIN32)
+        done |= stop
+        use &= ~stop
+        w = np.where(use, alpha * T, 0)
+        C += w[..., None] * colors[i]
+        D += w * p["depth"]
+        T = np.where(use, T * (1 - alpha), T)
+        T32 = np.where(use, next_T32, T32)
+    rgb = C + T[..., None] * bg
+    return rgb, 1 - T, D

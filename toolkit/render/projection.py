@@ -1,0 +1,219 @@
+"""Input checks and the EWA projection of 3D Gaussians to the image (gsplat's semantics, DESIGN.md).
+
+Everything here runs in float64 whatever the input dtype (the projection costs O(N), the pixels
+dominate), with autograd. Two numerically careful choices make the float64 values reliable even for
+extreme Gaussians (scales 1e-6 .. 1e2 m, anisotropy 1e6, centres on the near plane):
+
+- the 2D covariance is kept in factored form, Sigma2d = N N^T + eps2d I with N = J R_view R S
+  (2 x 3), and its determinant is eps2d^2 + eps2d tr(N N^T) + |n_0 x n_1|^2 (Cauchy-Binet), a sum of
+  non-negative terms, instead of a c - b^2, which cancels catastrophically for thin Gaussians;
+- the rasterizer evaluates sigma = 0.5 (A dx^2 + C dy^2) + B dx dy as 0.5 (u^2 + v^2) with
+  u = a dx + b dy, v = c dy, the Cholesky factor of the conic [[A, B], [B, C]] = L^T L,
+  L = [[a, b], [0, c]]: a = sqrt(Sigma11 / det), b = -Sigma01 / sqrt(det Sigma11), c = 1 / sqrt(Sigma11).
+  The same quadratic form, without the cancellation of the expanded polynomial.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+ALPHA_THRESHOLD = 1.0 / 255.0  # skip alpha below this; cull opacity below this
+MAX_ALPHA = 0.99  # per-pixel alpha cap (gsplat >= 1.6; 0.999 in gsplat <= 1.5.3)
+TRANSMITTANCE_THRESHOLD = 1e-4  # stop when T (1 - alpha) <= this, that Gaussian excluded
+EPS2D = 0.3  # px^2 added to the 2D covariance diagonal
+MAX_EXTENT = 3.33  # sigmas; never active for opacity <= 1 (sqrt(2 ln 255) = 3.3290 < 3.33)
+
+
+class Projection(NamedTuple):
+    """Per-Gaussian screen-space quantities; entries of culled Gaussians are 0 (depth excepted)."""
+
+    means2d: torch.Tensor  # [N, 2] pixels
+    conics: torch.Tensor  # [N, 3] (A, B, C) of the inverse 2D covariance
+    depths: torch.Tensor  # [N] camera z of the centre (every Gaussian)
+    radii: torch.Tensor  # [N, 2] int32, 0 where culled
+    visible: torch.Tensor  # [N] bool
+
+
+class _Projected(NamedTuple):
+    """The rasterizer's view: float64 values of the M visible Gaussians only (autograd attached)."""
+
+    ids: torch.Tensor  # [M] int64 indices into the N inputs
+    means2d: torch.Tensor  # [M, 2]
+    chol: torch.Tensor  # [M, 3] (a, b, c): sigma = 0.5 ((a dx + b dy)^2 + (c dy)^2)
+    conics: torch.Tensor  # [M, 3] (A, B, C)
+    depths: torch.Tensor  # [M]
+    radii: torch.Tensor  # [M, 2] float64 whole numbers (no grad)
+    z_all: torch.Tensor  # [N] camera z of every Gaussian (detached)
+
+
+# --------------------------------------------------------------------------------------------
+# input checks
+
+
+def _check_size(name: str, value) -> int:
+    import numbers
+
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name}: must be a positive int, got {value!r}")
+    if value <= 0:
+        raise ValueError(f"{name}: must be a positive int, got {value}")
+    return int(value)
+
+
+def _check_tensor(name: str, t, shape: tuple, device=None) -> torch.Tensor:
+    """shape: ints, or None for 'any'. Returns the tensor; raises ValueError naming ``name``."""
+    if not isinstance(t, torch.Tensor):
+        raise ValueError(f"{name}: expected a torch.Tensor, got {type(t).__name__}")
+    if not t.dtype.is_floating_point:
+        raise ValueError(f"{name}: expected a floating-point tensor, got dtype {t.dtype}")
+    want = "[" + ", ".join("N" if s is None else str(s) for s in shape) + "]"
+    if t.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):
+        raise ValueError(f"{name}: expected shape {want}, got {list(t.shape)}")
+    if device is not None and t.device != device:
+        raise ValueError(f"{name}: on device {t.device}, expected {device} like means")
+    bad = int((~torch.isfinite(t.detach())).sum())
+    if bad:
+        raise ValueError(f"{name}: {bad} of {t.numel()} values are NaN or Inf")
+    return t
+
+
+def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height, background=None,
+                 near_plane: float = 0.01, far_plane: float = 1e10):
+    """Validate the rasterizer's inputs (ValueError naming the argument and the count). -> (N, W, H)."""
+    width = _check_size("width", width)
+    height = _check_size("height", height)
+    if not isinstance(means, torch.Tensor):
+        raise ValueError(f"means: expected a torch.Tensor, got {type(means).__name__}")
+    n = means.shape[0] if means.dim() >= 1 else -1
+    dev = means.device
+    _check_tensor("means", means, (None, 3))
+    _check_tensor("quats", quats, (n, 4), dev)
+    _check_tensor("scales", scales, (n, 3), dev)
+    if opacities is not None:
+        _check_tensor("opacities", opacities, (n,), dev)
+    if colors is not None:
+        _check_tensor("colors", colors, (n, 3), dev)
+    _check_tensor("viewmat", viewmat, (4, 4), dev)
+    _check_tensor("K", K, (3, 3), dev)
+    if background is not None:
+        _check_tensor("background", background, (3,), dev)
+    neg = int((scales.detach() < 0).sum())
+    if neg:
+        raise ValueError(f"scales: {neg} of {scales.numel()} values are negative (activated scales are >= 0)")
+    if opacities is not None:
+        out = int(((opacities.detach() < 0) | (opacities.detach() > 1)).sum())
+        if out:
+            raise ValueError(f"opacities: {out} of {opacities.numel()} values lie outside [0, 1]")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"K: focal lengths must be > 0, got fx={float(K[0, 0])}, fy={float(K[1, 1])}")
+    near, far = float(near_plane), float(far_plane)
+    if not (math.isfinite(near) and near > 0):
+        raise ValueError(f"near_plane: must be a finite number > 0, got {near_plane}")
+    if not (far > near):  # far may be inf
+        raise ValueError(f"far_plane: must be > near_plane ({near}), got {far_plane}")
+    return n, width, height
+
+
+# --------------------------------------------------------------------------------------------
+# projection
+
+
+def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
+    """wxyz -> [..., 3, 3]; normalised inside; the zero quaternion gives the identity."""
+    norm = torch.linalg.vector_norm(quats, dim=-1, keepdim=True)
+    q = quats / torch.where(norm > 0, norm, torch.ones_like(norm))  # zero stays zero -> R = I below
+    w, x, y, z = q.unbind(-1)
+    R = torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], -1)
+    return R.reshape(quats.shape[:-1] + (3, 3))
+
+
+def _project(means, quats, scales, opacities, viewmat, K, width: int, height: int,
+             near_plane: float = 0.01, far_plane: float = 1e10, eps2d: float = EPS2D) -> _Projected:
+    """Float64 projection of the visible Gaussians (see module doc). ``opacities`` None: extent 3.33,
+    no opacity cull (the rule of gsplat's pure-torch reference)."""
+    f64 = torch.float64
+    vm = viewmat.to(f64)
+    Kd = K.to(f64)
+    Rv, tv = vm[:3, :3], vm[:3, 3]
+    mc_all = means.to(f64) @ Rv.T + tv  # [N, 3]
+    z_all = mc_all[:, 2].detach()
+    keep = (z_all >= near_plane) & (z_all <= far_plane)
+    if opacities is not None:  # the opacity cull compares float32 values, like gsplat
+        keep &= opacities.detach().float() >= torch.tensor(ALPHA_THRESHOLD, dtype=torch.float32)
+    ids = torch.nonzero(keep).squeeze(1)
+    mc = mc_all[ids]
+    R = quat_to_rotmat(quats[ids].to(f64))
+    M = Rv @ (R * scales[ids].to(f64)[:, None, :])  # [M, 3, 3] camera-frame factor: Sigma_c = M M^T
+    tx, ty, tz = mc.unbind(-1)
+    fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
+    tan_fovx, tan_fovy = 0.5 * width / fx, 0.5 * height / fy
+    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
+    lim_x_neg = cx / fx + 0.3 * tan_fovx
+    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
+    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    txc = tz * torch.clamp(tx / tz, min=-lim_x_neg, max=lim_x_pos)
+    tyc = tz * torch.clamp(ty / tz, min=-lim_y_neg, max=lim_y_pos)
+    # rows of N = J M: J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]]
+    n0 = (fx / tz)[:, None] * (M[:, 0, :] - (txc / tz)[:, None] * M[:, 2, :])
+    n1 = (fy / tz)[:, None] * (M[:, 1, :] - (tyc / tz)[:, None] * M[:, 2, :])
+    p00, p11 = (n0 * n0).sum(-1), (n1 * n1).sum(-1)
+    s00, s11, s01 = p00 + eps2d, p11 + eps2d, (n0 * n1).sum(-1)
+    cross = torch.linalg.cross(n0, n1)
+    det = eps2d * eps2d + eps2d * (p00 + p11) + (cross * cross).sum(-1)
+    conics = torch.stack([s11 / det, -s01 / det, s00 / det], -1)
+    chol = torch.stack([torch.sqrt(s11 / det), -s01 / torch.sqrt(det * s11), 1.0 / torch.sqrt(s11)], -1)
+    mean2d = (mc[:, :2] @ Kd[:2, :2].T + Kd[:2, 2] * tz[:, None]) / tz[:, None]  # gsplat: K[:2] @ m / z
+    with torch.no_grad():
+        if opacities is None:
+            extent = torch.full_like(tz, MAX_EXTENT)
+        else:
+            o = opacities[ids].detach().to(f64)
+            extent = torch.sqrt(torch.clamp(2.0 * torch.log(o * 255.0), min=0.0)).clamp(max=MAX_EXTENT)
+        radii = torch.stack([torch.ceil(extent * torch.sqrt(s00.detach())),
+                             torch.ceil(extent * torch.sqrt(s11.detach()))], -1)
+        m2 = mean2d.detach()
+        ok = (det.detach() > 0) & ((radii[:, 0] > 0) | (radii[:, 1] > 0))
+        ok &= (m2[:, 0] + radii[:, 0] > 0) & (m2[:, 0] - radii[:, 0] < width)
+        ok &= (m2[:, 1] + radii[:, 1] > 0) & (m2[:, 1] - radii[:, 1] < height)
+        sel = torch.nonzero(ok).squeeze(1)
+    return _Projected(ids=ids[sel], means2d=mean2d[sel], chol=chol[sel], conics=conics[sel], depths=tz[sel],
+                      radii=radii[sel], z_all=z_all)
+
+
+def project_gaussians(
+    means: torch.Tensor,  # [N, 3]
+    quats: torch.Tensor,  # [N, 4] wxyz
+    scales: torch.Tensor,  # [N, 3]
+    opacities: torch.Tensor | None,  # [N] or None (fixed 3.33-sigma extent, no opacity cull)
+    viewmat: torch.Tensor,  # [4, 4]
+    K: torch.Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+) -> Projection:
+    """Project Gaussians to the image: means2d, conics, depths, radii (int32) and the visible mask.
+
+    Differentiable (float64 inside, returned in the dtype of ``means``). Culled Gaussians (centre
+    depth outside [near, far], opacity < 1/255, box entirely off screen) have radii 0 and zero
+    means2d/conics; ``depths`` is the camera z of every Gaussian.
+    """
+    n, width, height = check_inputs(means, quats, scales, opacities, None, viewmat, K, width, height,
+                                    near_plane=near_plane, far_plane=far_plane)
+    p = _project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
+    dt = means.dtype
+    means2d = means.new_zeros(n, 2, dtype=torch.float64).index_copy(0, p.ids, p.means2d)
+    conics = means.new_zeros(n, 3, dtype=torch.float64).index_copy(0, p.ids, p.conics)
+    z = (means.to(torch.float64) @ viewmat.to(torch.float64)[2, :3]) + viewmat.to(torch.float64)[2, 3]
+    radii = torch.zeros(n, 2, dtype=torch.int32, device=means.device)
+    radii[p.ids] = p.radii.clamp(max=2**31 - 1).to(torch.int32)
+    visible = torch.zeros(n, dtype=torch.bool, device=means.device)
+    visible[p.ids] = True
+    return Projection(means2d.to(dt), conics.to(dt), z.to(dt), radii, visible)

@@ -1,0 +1,416 @@
+"""Differentiable tile rasterizer for 3D Gaussians on the CPU (gsplat's semantics, DESIGN.md).
+
+Semantics, per pixel with centre (j + 0.5, i + 0.5), visible Gaussians front to back by centre depth
+(ties by index), each only within its radius box (:mod:`.tiles`):
+sigma = 0.5 (A dx^2 + C dy^2) + B dx dy, alpha = min(0.99, o exp(-sigma)), skipped if < 1/255;
+next_T = T (1 - alpha); stop, that Gaussian excluded, when next_T <= 1e-4; else w = alpha T, T = next_T.
+Outputs: rgb = sum w c + T background, alpha = 1 - T, and depth = sum w z, the alpha-weighted SUM of
+camera depths, NOT normalised (gsplat's "D" mode; depth / alpha is the expected depth of the covered
+part, 0 / 0 on empty pixels, which is why it is left to the caller).
+
+Pipeline. :func:`~.projection._project` (float64, autograd, O(N)) -> per-tile depth-sorted lists of
+(tile, Gaussian) pairs (:func:`~.tiles.bin_gaussians`) -> :class:`_Raster`, a custom autograd Function
+with a hand-written backward. Per pair it precomputes, for the tile's s rows and s columns, the terms
+of the exponent (see :func:`_pair_terms`); pixels are then evaluated densely as tensors
+[tiles, s, s, kb] (row, column, Gaussian; the list axis innermost): chunks of tiles (sorted by list
+length), each walked along the lists in blocks of kb Gaussians that carry the per-pixel T. A block's
+size is chosen so it holds about ``chunk_elements`` pixel-Gaussian entries (kb grows as the shorter
+lists run out), which bounds peak memory independently of N and of the image size; a tile leaves the
+walk when all its pixels have stopped. The backward pass recomputes each block back to front (nothing
+per pixel and Gaussian is stored) and applies the gradient of the blending equations, with the
+per-pixel skip / cap / stop decisions as constants, as gsplat's CUDA backward does.
+
+Tile size. gsplat's 16 x 16 tiles suit a GPU thread block. Here the dense cost is pairs x s^2 and a
+small Gaussian (radius ~5 px at the avatar's 1 cm scale) fills little of a 16 x 16 tile, so 8 x 8
+tiles (``DEFAULT_TILE``) do about half the work of 16 x 16 at this scale for a little more binning; the
+semantics do not depend on the tile size (tests run several).
+
+Precision. The render dtype is float32 (float64 when ``means`` is float64, for gradient checks).
+alpha and T are float32 and the stop test is ``T * (1 - alpha) <= 1e-4`` on float32 values in both
+dtypes. T is a running product from ``torch.cumprod``, which accumulates in double and rounds each T
+to float32: at the exact ties of the stop test (two alphas capped at 0.99 from T = 1, 0.01f * 0.01f)
+the product is exact, so the decision is float32's; elsewhere T may differ from a strictly sequential
+float32 product by a few ulps, as alpha itself does from a float64 reference. The quadratic form is
+evaluated in Cholesky form, sigma = u^2 + v^2 with u, v anchored at each tile's centre in float64
+(:mod:`.projection`), so float32 pixels stay accurate for extreme and far-off-centre Gaussians; sigma
+is non-negative by construction, so gsplat's "skip if sigma < 0" (a guard against rounding in the
+expanded form) never applies.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch.autograd.function import once_differentiable
+
+from trioman.toolkit.render.projection import (
+    ALPHA_THRESHOLD,
+    EPS2D,
+    MAX_ALPHA,
+    TRANSMITTANCE_THRESHOLD,
+    _project,
+    check_inputs,
+)
+from trioman.toolkit.render.tiles import bin_gaussians
+
+DEFAULT_TILE = 8  # tile side in pixels (module doc)
+DEFAULT_CHUNK_ELEMENTS = 1 << 18  # pixel x Gaussian entries per dense block tensor (1 MiB in float32)
+KB_MIN = 16  # shortest block along the lists
+
+_F32 = torch.float32
+_THR_A32 = float(torch.tensor(ALPHA_THRESHOLD, dtype=_F32))  # 1/255 rounded to float32
+_THR_A32_PREV = float(torch.nextafter(torch.tensor(_THR_A32), torch.tensor(0.0)))  # x > this <=> x >= 1/255f
+_THR_T32 = float(torch.tensor(TRANSMITTANCE_THRESHOLD, dtype=_F32))  # 1e-4 rounded to float32
+_SQRT_HALF = math.sqrt(0.5)
+_FAR_U = 1e4  # added to u in columns outside a Gaussian's box: alpha 0, finite gradients
+_FAR_HV = -1e4  # added to the log-opacity term in rows outside the box; the padding pair's value
+_MIN_S = -60.0  # exp argument floor: exp(-60) is still a normal float32 (exp's underflow path is slow)
+
+# columns of the per-Gaussian input of _Raster: mean2d x, y (0, 1), Cholesky a, b, c, log o, rgb (6:9), z (9)
+_A, _B, _C, _LNO = 2, 3, 4, 5
+
+
+class RenderOutput(NamedTuple):
+    rgb: torch.Tensor  # [H, W, 3]
+    alpha: torch.Tensor  # [H, W]
+    depth: torch.Tensor  # [H, W] sum of w_i z_i (not normalised)
+
+
+# --------------------------------------------------------------------------------------------
+# the dense block kernel
+#
+# For a pair (tile, Gaussian), with s the tile side and L_l = l - (s - 1) / 2 the offset of pixel row
+# or column l from the tile centre, the exponent of o exp(-sigma) is
+#     log o - sigma = hv[row] - (colt[col] + rowt[row])^2,
+#     colt[l] = u0 + a L_l      (+ FAR_U in columns outside the box)
+#     rowt[l] = b L_l
+#     hv[l]   = log o - (v0 + c L_l)^2      (+ FAR_HV in rows outside the box)
+# where (a, b, c) is the Cholesky factor of the conic scaled by sqrt(1/2) and (u0, v0) = (a dx + b dy,
+# c dy) at the tile centre (dx, dy = centre - mean2d). The terms of all pairs are the rows of one
+# [P + 1, 3 s + 4] matrix (the pair's rgb and z in the last 4 columns; row P is a padding pair that is
+# never visible), so a block needs one gather.
+
+
+def _pair_terms(params, feats, box, s: int):
+    """params [6, P] (u0, v0, a, b, c, log o), feats [4, P], box [4, P] -> terms [P + 1, 3 s + 4]."""
+    u0, v0, a, b, c, lno = (x[:, None] for x in params)
+    dt = params.dtype
+    L = torch.arange(s, device=params.device, dtype=dt) - (s - 1) / 2  # [s]
+    n = params.shape[1]
+    terms = params.new_empty(n + 1, 3 * s + 4)
+    colt, rowt, hv = terms[:n, :s], terms[:n, s:2 * s], terms[:n, 2 * s:3 * s]
+    outside = torch.empty(n, s, dtype=_F32, device=params.device)
+    L32 = L.to(_F32)
+    torch.addcmul(u0, a, L, out=colt)
+    torch.gt((box[0][:, None] + L32).abs_(), box[2][:, None], out=outside)  # column outside the box
+    colt.add_(outside, alpha=_FAR_U)
+    torch.mul(b, L, out=rowt)
+    v = torch.addcmul(v0, c, L)
+    torch.addcmul(lno, v, v, value=-1.0, out=hv)
+    torch.gt((box[1][:, None] + L32).abs_(), box[3][:, None], out=outside)  # row outside the box
+    hv.add_(outside, alpha=_FAR_HV)
+    terms[:n, 3 * s:] = feats.T
+    terms[n] = 0.0
+    terms[n, :s] = _FAR_U
+    terms[n, 2 * s:3 * s] = _FAR_HV
+    return terms
+
+
+class _Block(NamedTuple):
+    tiles: torch.Tensor  # [Ta] active tiles (positions in the chunk)
+    k0: int  # first list position of the block
+    kb: int  # block length
+    carry: torch.Tensor  # [Ta, s, s] T before the block (render dtype), 0 where a pixel has stopped
+    carry32: torch.Tensor  # the same in float32 (the same tensor when rendering in float32)
+
+
+def _gather_block(terms, tile_start, tile_count, t, k0: int, kb: int):
+    """-> pidx [Ta, kb] (P for padding), X [Ta, 3 s + 4, kb]: colt, rowt, hv, then rgb and z."""
+    n_pairs = terms.shape[0] - 1
+    ta = t.numel()
+    k = torch.arange(k0, k0 + kb, device=terms.device)
+    pidx = tile_start[t][:, None] + k
+    pidx = torch.where(k < tile_count[t][:, None], pidx, n_pairs)
+    X = terms.index_select(0, pidx.view(-1)).view(ta, kb, -1).transpose(1, 2).contiguous()
+    return pidx, X
+
+
+def _block_alpha(X, s: int):
+    """-> U [Ta, s, s, kb] (row, column, Gaussian) and alpha = min(0.99, o exp(-sigma)), 0 where skipped."""
+    colt, rowt, hv = X[:, :s], X[:, s:2 * s], X[:, 2 * s:3 * s]
+    U = colt[:, None, :, :] + rowt[:, :, None, :]
+    G = torch.addcmul(hv[:, :, None, :], U, U, value=-1.0)
+    G.clamp_(min=_MIN_S).exp_()  # o exp(-sigma)
+    if G.dtype == _F32:
+        F.threshold(G, _THR_A32_PREV, 0.0, inplace=True)  # skip alpha < 1/255
+    else:  # the skip test on float32 values
+        G.mul_(G.to(_F32) >= _THR_A32)
+    return U, G.clamp_(max=MAX_ALPHA)
+
+
+def _transmittance(alpha, blk: _Block):
+    """-> onem [..., kb + 1] (T before the block, then 1 - alpha), P = cumprod(onem): T before each
+    Gaussian, then after the last; incl (1.0 / 0.0): not stopped (T (1 - alpha) > 1e-4 on float32
+    values; a prefix of the block); P32 (the float32 P when rendering in float64) or None."""
+    shape = alpha.shape[:-1] + (alpha.shape[-1] + 1,)
+    onem = alpha.new_empty(shape)
+    onem[..., 0] = blk.carry
+    torch.add(torch.ones((), dtype=alpha.dtype), alpha, alpha=-1.0, out=onem[..., 1:])
+    P = torch.cumprod(onem, -1)
+    incl = torch.empty_like(alpha)
+    if alpha.dtype == _F32:
+        return onem, P, torch.gt(P[..., 1:], _THR_T32, out=incl), None
+    a32 = alpha.to(_F32)
+    P32 = a32.new_empty(shape)
+    P32[..., 0] = blk.carry32
+    torch.add(torch.ones((), dtype=_F32), a32, alpha=-1.0, out=P32[..., 1:])
+    P32 = torch.cumprod(P32, -1)
+    return onem, P, torch.gt(P32[..., 1:], _THR_T32, out=incl), P32
+
+
+def _plan_chunks(tile_count: torch.Tensor, chunk_elements: int, s: int) -> list[list[int]]:
+    """Non-empty tiles by decreasing list length, in chunks of at most chunk_elements / (s^2 KB_MIN)."""
+    count = tile_count.tolist()
+    order = sorted((t for t, c in enumerate(count) if c > 0), key=lambda t: -count[t])
+    per = max(1, chunk_elements // (s * s * KB_MIN))
+    return [order[i:i + per] for i in range(0, len(order), per)]
+
+
+def _pair_params(gq, pair_gauss, centre, radii, dt):
+    """Per pair: params [6, P] (u0, v0, a, b, c, log o), feats [4, P], box [4, P] and the float64
+    centre offsets (dx, dy) [2, P] (see the kernel comment)."""
+    Q = gq[pair_gauss]  # [P, 10] float64
+    d = centre - Q[:, :2].T  # [2, P]
+    u0 = Q[:, _A] * d[0] + Q[:, _B] * d[1]
+    v0 = Q[:, _C] * d[1]
+    params = torch.stack([u0, v0, Q[:, _A], Q[:, _B], Q[:, _C], Q[:, _LNO]]).to(dt)
+    feats = Q[:, 6:].T.to(dt)
+    box = torch.cat([d, radii[pair_gauss].T]).to(_F32)
+    return params, feats, box, d
+
+
+class _Raster(torch.autograd.Function):
+    """gq [M, 10] float64 per visible Gaussian: (mean2d x, y, a, b, c, log o, r, g, b, z), with (a, b, c)
+    the conic's Cholesky factor scaled by sqrt(1/2). -> per tile color [T, 4, s^2] (sum w c, sum w z)
+    and T_final [T, s^2], in ``dt``. Not differentiable: radii [M, 2], the bins, inside [T, s, s]."""
+
+    @staticmethod
+    def forward(ctx, gq, radii, pair_gauss, pair_tile, tile_start, tile_count, tiles_x, inside, s, chunk_elements, dt):
+        dev = gq.device
+        tile_xy = torch.stack([pair_tile % tiles_x, torch.div(pair_tile, tiles_x, rounding_mode="floor")])
+        centre = (tile_xy * s).to(torch.float64) + s / 2  # [2, P] pixel coordinates of each pair's tile centre
+        params, feats, box, d = _pair_params(gq, pair_gauss, centre, radii, dt)
+        terms = _pair_terms(params, feats, box, s)
+        n_tiles = tile_count.shape[0]
+        color = params.new_zeros(n_tiles, 4, s * s)
+        T_final = params.new_ones(n_tiles, s, s)
+        plan = []
+        for tiles_l in _plan_chunks(tile_count, chunk_elements, s):
+            tiles = torch.tensor(tiles_l, dtype=torch.int64, device=dev)
+            counts = tile_count[tiles]
+            T = inside[tiles].to(dt)  # T after the last included Gaussian (1 outside the image: unused)
+            T32 = T if dt == _F32 else T.to(_F32)
+            alive = inside[tiles].to(dt)  # 1.0 until a pixel stops (0 outside the image)
+            acc = params.new_zeros(len(tiles_l), 4, s * s)
+            local = torch.arange(len(tiles_l), device=dev)
+            blocks = []
+            k0 = 0
+            while local.numel():
+                ta = local.numel()
+                kb = min(max(KB_MIN, chunk_elements // (ta * s * s)), int(counts[local].max()) - k0)
+                t = tiles[local]
+                live = alive[local]
+                carry = T[local] * live
+                blk = _Block(local, k0, kb, carry, carry if dt == _F32 else T32[local] * live.to(_F32))
+                blocks.append(blk)
+                _, X = _gather_block(terms, tile_start, tile_count, t, k0, kb)
+                _, alpha = _block_alpha(X, s)
+                _, P, incl, P32 = _transmittance(alpha, blk)
+                w = alpha.mul_(P[..., :-1]).mul_(incl).view(ta, s * s, kb)
+                acc.index_add_(0, local, torch.bmm(X[:, 3 * s:], w.transpose(1, 2)))
+                n = incl.sum(-1, keepdim=True).long()  # included Gaussians (a prefix of the block)
+                T[local] = torch.where(live > 0, P.gather(-1, n)[..., 0], T[local])
+                if dt != _F32:
+                    T32[local] = torch.where(live > 0, P32.gather(-1, n)[..., 0], T32[local])
+                alive[local] = live * (n[..., 0] == kb)
+                k0 += kb
+                local = local[(counts[local] > k0) & (alive[local].flatten(1).amax(1) > 0)]
+            color[tiles] = acc
+            T_final[tiles] = T
+            plan.append((tiles, blocks))
+        ctx.plan = plan
+        ctx.s = s
+        ctx.n_gauss = gq.shape[0]
+        ctx.save_for_backward(params, d, pair_gauss, terms, tile_start, tile_count, T_final)
+        return color, T_final.view(n_tiles, s * s)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_color, g_T):
+        params, d, pair_gauss, terms, tile_start, tile_count, T_final = ctx.saved_tensors
+        s = ctx.s
+        g_terms = torch.zeros_like(terms)  # [P + 1, 3 s + 4]
+        g_color = g_color.contiguous()  # [T, 4, s^2]
+        g_T = g_T.reshape(-1, s, s)
+        for tiles, blocks in ctx.plan:
+            # after a block: sum over later Gaussians of w e, plus T_final dL/dT_final (per pixel)
+            suffix = (T_final[tiles] * g_T[tiles]).unsqueeze(-1)  # [Tc, s, s, 1]
+            for blk in reversed(blocks):
+                t = tiles[blk.tiles]
+                ta, kb = t.numel(), blk.kb
+                pidx, X = _gather_block(terms, tile_start, tile_count, t, blk.k0, kb)
+                U, alpha = _block_alpha(X, s)
+                onem, P, incl, _ = _transmittance(alpha, blk)
+                Texcl = P[..., :-1]
+                ai = alpha.mul_(incl)  # the alphas that count
+                w = ai * Texcl
+                # d alpha / d(log o - sigma) = alpha where it counts and is not capped (gsplat's backward)
+                D = torch.lt(ai, MAX_ALPHA, out=torch.empty_like(ai)).mul_(ai)
+                go = g_color[t]  # [ta, 4, s^2]
+                e = torch.bmm(go.transpose(1, 2), X[:, 3 * s:]).view(ta, s, s, kb)  # d L / d w
+                g_ft = torch.bmm(go, w.view(ta, s * s, kb))  # [ta, 4, kb]
+                cs = torch.cumsum(w.mul_(e), -1)
+                after = suffix[blk.tiles] + cs[..., -1:]
+                suffix[blk.tiles] = after
+                S = torch.sub(after, cs, out=cs)  # sum_{j > k} w_j e_j + T_final dL/dT_final
+                g = e.mul_(Texcl).addcdiv_(S, onem[..., 1:], value=-1.0)  # d L / d alpha_k
+                g.mul_(D)  # d L / d (log o - sigma)
+                gU = U.mul_(g)
+                gX = torch.cat([gU.sum(1).mul_(-2.0), gU.sum(2).mul_(-2.0), g.sum(2), g_ft], 1)  # [ta, R, kb]
+                g_terms.index_copy_(0, pidx.view(-1), gX.transpose(1, 2).reshape(ta * kb, -1))
+        # row / column terms -> per-pair scalars -> per-Gaussian inputs (float64)
+        n = params.shape[1]
+        u0, v0, a, b, c, lno = params
+        L = (torch.arange(s, device=params.device, dtype=params.dtype) - (s - 1) / 2)[:, None]
+        gT = g_terms[:n].T
+        g_colt, g_rowt, g_hv = gT[:s], gT[s:2 * s], gT[2 * s:3 * s]
+        g_v = torch.addcmul(v0, c, L).mul_(g_hv).mul_(-2.0)
+        f64 = torch.float64
+        g_u0, g_v0 = g_colt.sum(0).to(f64), g_v.sum(0).to(f64)
+        a, b, c = a.to(f64), b.to(f64), c.to(f64)
+        g_pair = torch.stack([
+            -g_u0 * a,  # mean2d x (d = centre - mean2d)
+            -g_u0 * b - g_v0 * c,  # mean2d y
+            (g_colt * L).sum(0).to(f64) + g_u0 * d[0],  # a
+            (g_rowt * L).sum(0).to(f64) + g_u0 * d[1],  # b
+            (g_v * L).sum(0).to(f64) + g_v0 * d[1],  # c
+            g_hv.sum(0).to(f64),  # log o
+        ], 1)
+        g_pair = torch.cat([g_pair, gT[3 * s:].T.to(f64)], 1)  # [P, 10]
+        g_gq = g_pair.new_zeros(ctx.n_gauss, 10).index_add_(0, pair_gauss, g_pair)
+        return (g_gq,) + (None,) * 10
+
+
+# --------------------------------------------------------------------------------------------
+# public entry point
+
+
+def rasterize(
+    means: torch.Tensor,  # [N, 3]
+    quats: torch.Tensor,  # [N, 4] wxyz, normalised inside (zero = identity)
+    scales: torch.Tensor,  # [N, 3] activated, metres
+    opacities: torch.Tensor,  # [N] in [0, 1]
+    colors: torch.Tensor,  # [N, 3]
+    viewmat: torch.Tensor,  # [4, 4] world -> camera (OpenCV)
+    K: torch.Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,  # [3]; None: black
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    *,
+    chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
+    tile_size: int = DEFAULT_TILE,
+) -> RenderOutput:
+    """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]); see the module doc.
+
+    Differentiable w.r.t. means, quats, scales, opacities, colors and background. ``depth`` is the
+    alpha-weighted sum of camera depths, not normalised. Outputs are float32 (float64 for float64
+    ``means``). N == 0 or nothing visible gives the background. On CUDA tensors with gsplat installed
+    the work goes to ``gsplat.rasterization`` (see :func:`_rasterize_gsplat`). ``chunk_elements``
+    bounds the dense pixel x Gaussian block tensors (peak memory); ``tile_size`` is the tile side.
+    Neither changes the result beyond float32 rounding of the colour sums.
+    """
+    n, width, height = check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height,
+                                    background, near_plane, far_plane)
+    if isinstance(chunk_elements, bool) or not isinstance(chunk_elements, int) or chunk_elements < 1:
+        raise ValueError(f"chunk_elements: must be an int >= 1, got {chunk_elements!r}")
+    if isinstance(tile_size, bool) or not isinstance(tile_size, int) or not 1 <= tile_size <= 64:
+        raise ValueError(f"tile_size: must be an int in [1, 64], got {tile_size!r}")
+    dt = torch.float64 if means.dtype == torch.float64 else _F32
+    dev = means.device
+    bg = background.to(dt) if background is not None else torch.zeros(3, dtype=dt, device=dev)
+
+    def nothing_visible():  # the background, with the inputs still in the graph (zero gradients)
+        link = sum(x.sum() for x in (means, quats, scales, opacities, colors)).to(dt) * 0
+        zeros = torch.zeros(height, width, dtype=dt, device=dev) + link
+        return RenderOutput(bg.expand(height, width, 3) + link, zeros, zeros.clone())
+
+    if n == 0:
+        return nothing_visible()
+    if means.is_cuda and _gsplat_available():
+        return _rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height, background,
+                                 near_plane, far_plane)
+    p = _project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
+    if p.ids.numel() == 0:
+        return nothing_visible()
+    s = tile_size
+    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
+    f64 = torch.float64
+    gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(opacities[p.ids].to(f64))[:, None],
+                    colors[p.ids].to(f64), p.depths[:, None]], 1)  # [M, 10]
+    ty, tx = torch.meshgrid(torch.arange(bins.tiles_y, device=dev), torch.arange(bins.tiles_x, device=dev),
+                            indexing="ij")
+    li = torch.arange(s, device=dev)
+    inside = (ty.reshape(-1, 1, 1) * s + li[:, None] < height) & (tx.reshape(-1, 1, 1) * s + li[None, :] < width)
+    color, T_final = _Raster.apply(gq, p.radii, bins.pair_gauss, bins.pair_tile, bins.tile_start, bins.tile_count,
+                                   bins.tiles_x, inside, s, chunk_elements, dt)
+
+    def to_image(x):  # [T, C, s^2] -> [H, W, C]
+        C = x.shape[1]
+        img = x.view(bins.tiles_y, bins.tiles_x, C, s, s).permute(0, 3, 1, 4, 2)
+        return img.reshape(bins.tiles_y * s, bins.tiles_x * s, C)[:height, :width]
+
+    color = to_image(color)
+    T = to_image(T_final.unsqueeze(1))
+    rgb = color[..., :3] + T * bg
+    return RenderOutput(rgb, 1.0 - T[..., 0], color[..., 3])
+
+
+# --------------------------------------------------------------------------------------------
+# CUDA: gsplat
+
+
+def _gsplat_available() -> bool:
+    if not torch.cuda.is_available():
+        return False
+    try:
+        import gsplat  # noqa: F401
+    except Exception:
+        return False
+    return True
+
+
+def _rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height, background,
+                      near_plane, far_plane) -> RenderOutput:
+    """gsplat.rasterization: classic mode, eps2d 0.3, unpacked, render_mode "RGB+D" (D = sum w z).
+
+    Known differences from the CPU path: gsplat <= 1.5.3 caps alpha at 0.999 (not 0.99) and projects
+    in float32; its CUDA quaternion normalisation gives NaN for a zero quaternion, so zero quaternions
+    are replaced by the identity here.
+    """
+    import gsplat
+
+    f = torch.float32
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=f, device=means.device)
+    quats = torch.where((quats == 0).all(-1, keepdim=True), identity, quats.to(f))
+    bg = None if background is None else background.to(f)[None]  # gsplat appends the depth channel's 0
+    out, alphas, _ = gsplat.rasterization(
+        means.to(f), quats, scales.to(f), opacities.to(f), colors.to(f), viewmat.to(f)[None], K.to(f)[None],
+        width, height, near_plane=near_plane, far_plane=far_plane, eps2d=EPS2D, packed=False,
+        rasterize_mode="classic", render_mode="RGB+D", backgrounds=bg,
+    )
+    return RenderOutput(out[0, ..., :3], alphas[0, ..., 0], out[0, ..., 3])
