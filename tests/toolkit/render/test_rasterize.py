@@ -12,6 +12,7 @@ torch = pytest.importorskip("torch")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
+from trioman.runtime import cameras  # noqa: E402
 from tests.toolkit.render.reference import project_reference, rasterize_reference  # noqa: E402
 from trioman.toolkit.render import RenderOutput, project_gaussians, rasterize  # noqa: E402
 
@@ -39,17 +40,7 @@ def random_scene(seed: int, n: int = 60, width: int = 40, height: int = 32):
 
 def orbit_viewmat(azimuth: float, elevation: float, distance: float) -> np.ndarray:
     """Camera looking at the origin (OpenCV axes), z-up world."""
-    ce = math.cos(elevation)
-    eye = distance * np.array([ce * math.sin(azimuth), -ce * math.cos(azimuth), math.sin(elevation)])
-    fwd = -eye / np.linalg.norm(eye)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    R = np.stack([right, down, fwd])
-    vm = np.eye(4)
-    vm[:3, :3] = R
-    vm[:3, 3] = -R @ eye
-    return vm
+    return cameras.orbit_viewmat(np.zeros(3), azimuth, elevation, distance)
 
 
 def as_tensors(scene, dtype=torch.float32):
