@@ -1,4 +1,4 @@
-"""File formats. The subject format (version 1) is a folder; docs/formats.md documents it in full.
+"""The subject format (version 1) is a folder; docs/formats.md documents it in full.
 
     subject.json        metadata: format, version, body model, image size, frame count, sequences ...
     body.npz            the subject's shaped body: SkinnedMesh.to_arrays() (pose it without torch)
@@ -27,6 +27,19 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from trioman.runtime.image_io import encode_png, fsync_dir, png_header, read_png, temp_sibling
+from trioman.runtime.formats.common import (
+    FormatError,
+    _fail,
+    _fsynced_write,
+    _is_int,
+    _is_number,
+    _load_json,
+    _load_npz,
+    _move_into_place,
+    _plain_json,
+    _real,
+    _write_npz,
+)
 from trioman.runtime.skeleton import SkinnedMesh
 
 SUBJECT_FORMAT = "trioman-subject"
@@ -46,14 +59,6 @@ LAST_ROW_TOL = 1e-6
 _FRAME_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}$")
 _FLOAT_ARRAYS = ("poses", "trans", "K", "viewmat")
 _STRING_ARRAYS = ("split", "sequence", "frame_names")
-
-
-class FormatError(ValueError):
-    """A file or folder does not follow its format. The message names the file, field and value."""
-
-
-# --------------------------------------------------------------------------------------------------
-# the subject
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,18 +171,6 @@ class Subject:
 
 # --------------------------------------------------------------------------------------------------
 # validation helpers (shared by load and save; ``where`` is the file path or "save_subject")
-
-
-def _fail(where: Any, field: str | None, problem: str) -> FormatError:
-    return FormatError(f"{where}: {field}: {problem}" if field else f"{where}: {problem}")
-
-
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
@@ -311,47 +304,6 @@ def _check_frames(
     return out
 
 
-def _load_json(path: Path) -> Any:
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file (is this a TrioMan subject folder?)")
-
-    def reject_constant(name: str) -> Any:
-        raise ValueError(f"{name} is not valid JSON")
-
-    try:
-        return json.loads(path.read_text(encoding="utf-8"), parse_constant=reject_constant)
-    except json.JSONDecodeError as err:
-        raise FormatError(f"{path}: malformed JSON: {err}") from None
-    except (ValueError, UnicodeDecodeError) as err:
-        raise FormatError(f"{path}: malformed JSON: {err}") from None
-
-
-def _load_npz(path: Path) -> dict[str, np.ndarray]:
-    """All arrays of an .npz, loaded without pickle. Any problem -> FormatError naming the file."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except Exception as err:  # not a zip / not an npy: numpy raises several types; all mean "invalid"
-        raise FormatError(f"{path}: not a valid .npz archive ({type(err).__name__}: {err})") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise FormatError(f"{path}: a single .npy array, not an .npz archive of named arrays")
-    key = None
-    try:
-        arrays = {}
-        for key in archive.files:
-            arrays[key] = archive[key]
-        return arrays
-    except ValueError as err:
-        if "pickle" in str(err) or "Object arrays" in str(err):
-            raise FormatError(f"{path}: {key}: holds Python objects (needs pickle), refused: {err}") from None
-        raise FormatError(f"{path}: {key}: unreadable array ({err})") from None
-    except Exception as err:
-        raise FormatError(f"{path}: {key}: unreadable array ({type(err).__name__}: {err})") from None
-    finally:
-        archive.close()
-
-
 # --------------------------------------------------------------------------------------------------
 # load
 
@@ -412,20 +364,6 @@ def _check_image_files(subject: Subject) -> None:
 
 # --------------------------------------------------------------------------------------------------
 # save
-
-
-def _fsynced_write(path: Path, data: bytes) -> None:
-    with open(path, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-
-
-def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
-    with open(path, "wb") as f:
-        np.savez(f, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
 
 
 def save_subject(
@@ -520,29 +458,6 @@ def save_subject(
     return Subject(root=target, meta=meta, body=body, **frames)
 
 
-def _real(v: Any) -> Any:
-    """A real number (numpy scalars included) as a Python float; anything else unchanged for _check_meta."""
-    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
-        return float(v)
-    return v
-
-
-def _plain_json(value: Any, where: str, field: str) -> Any:
-    """A JSON round trip of ``value`` (numpy scalars and arrays become numbers and lists)."""
-
-    def default(o: Any) -> Any:
-        if isinstance(o, (np.generic, np.ndarray)):
-            return o.tolist()
-        if isinstance(o, os.PathLike):
-            return os.fspath(o)
-        raise TypeError(f"{type(o).__name__} is not JSON-serialisable")
-
-    try:
-        return json.loads(json.dumps(value, default=default, allow_nan=False))
-    except (TypeError, ValueError) as err:
-        raise FormatError(f"{where}: {field}: {err}") from None
-
-
 def _write_frames(
     folder: Path, names: list[str], images: Iterable[np.ndarray], masks: Iterable[np.ndarray], W: int, H: int
 ) -> None:
@@ -570,23 +485,3 @@ def _write_frames(
     for kind, it, _, _ in streams:
         if next(it, None) is not None:
             raise FormatError(f"save_subject: {kind}: got more {kind} than the {N} frames")
-
-
-def _move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
-    if not target.exists():
-        os.rename(tmp, target)
-        return
-    if not any(target.iterdir()):
-        target.rmdir()
-        os.rename(tmp, target)
-        return
-    if not overwrite:  # appeared while we were writing
-        raise FileExistsError(f"{target}: folder exists and is not empty (pass overwrite=True to replace it)")
-    old = temp_sibling(target, ".old")
-    os.rename(target, old)
-    try:
-        os.rename(tmp, target)
-    except BaseException:
-        os.rename(old, target)
-        raise
-    shutil.rmtree(old, ignore_errors=True)

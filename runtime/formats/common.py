@@ -1,0 +1,136 @@
+"""Helpers shared by the file formats: the error type, safe JSON/npz reading, atomic writes.
+
+Files are data: ``np.load(..., allow_pickle=False)``, never pickle. Every problem becomes a
+``FormatError`` (a ValueError) whose message names the file, the field and the value.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from trioman.runtime.image_io import temp_sibling
+
+
+class FormatError(ValueError):
+    """A file or folder does not follow its format. The message names the file, field and value."""
+
+
+# --------------------------------------------------------------------------------------------------
+# the subject
+
+
+def _fail(where: Any, field: str | None, problem: str) -> FormatError:
+    return FormatError(f"{where}: {field}: {problem}" if field else f"{where}: {problem}")
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _load_json(path: Path) -> Any:
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file (is this a TrioMan subject folder?)")
+
+    def reject_constant(name: str) -> Any:
+        raise ValueError(f"{name} is not valid JSON")
+
+    try:
+        return json.loads(path.read_text(encoding="utf-8"), parse_constant=reject_constant)
+    except json.JSONDecodeError as err:
+        raise FormatError(f"{path}: malformed JSON: {err}") from None
+    except (ValueError, UnicodeDecodeError) as err:
+        raise FormatError(f"{path}: malformed JSON: {err}") from None
+
+
+def _load_npz(path: Path) -> dict[str, np.ndarray]:
+    """All arrays of an .npz, loaded without pickle. Any problem -> FormatError naming the file."""
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except Exception as err:  # not a zip / not an npy: numpy raises several types; all mean "invalid"
+        raise FormatError(f"{path}: not a valid .npz archive ({type(err).__name__}: {err})") from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise FormatError(f"{path}: a single .npy array, not an .npz archive of named arrays")
+    key = None
+    try:
+        arrays = {}
+        for key in archive.files:
+            arrays[key] = archive[key]
+        return arrays
+    except ValueError as err:
+        if "pickle" in str(err) or "Object arrays" in str(err):
+            raise FormatError(f"{path}: {key}: holds Python objects (needs pickle), refused: {err}") from None
+        raise FormatError(f"{path}: {key}: unreadable array ({err})") from None
+    except Exception as err:
+        raise FormatError(f"{path}: {key}: unreadable array ({type(err).__name__}: {err})") from None
+    finally:
+        archive.close()
+
+
+def _fsynced_write(path: Path, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _real(v: Any) -> Any:
+    """A real number (numpy scalars included) as a Python float; anything else unchanged for _check_meta."""
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
+        return float(v)
+    return v
+
+
+def _plain_json(value: Any, where: str, field: str) -> Any:
+    """A JSON round trip of ``value`` (numpy scalars and arrays become numbers and lists)."""
+
+    def default(o: Any) -> Any:
+        if isinstance(o, (np.generic, np.ndarray)):
+            return o.tolist()
+        if isinstance(o, os.PathLike):
+            return os.fspath(o)
+        raise TypeError(f"{type(o).__name__} is not JSON-serialisable")
+
+    try:
+        return json.loads(json.dumps(value, default=default, allow_nan=False))
+    except (TypeError, ValueError) as err:
+        raise FormatError(f"{where}: {field}: {err}") from None
+
+
+def _move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
+    if not target.exists():
+        os.rename(tmp, target)
+        return
+    if not any(target.iterdir()):
+        target.rmdir()
+        os.rename(tmp, target)
+        return
+    if not overwrite:  # appeared while we were writing
+        raise FileExistsError(f"{target}: folder exists and is not empty (pass overwrite=True to replace it)")
+    old = temp_sibling(target, ".old")
+    os.rename(target, old)
+    try:
+        os.rename(tmp, target)
+    except BaseException:
+        os.rename(old, target)
+        raise
+    shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,1 @@
+"""The numpy splat renderer (DESIGN.md semantics)."""
