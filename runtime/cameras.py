@@ -64,3 +64,24 @@ def project(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> tuple[np.
     with np.errstate(divide="ignore", invalid="ignore"):
         uv = (cam[:, :2] / z[:, None]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
     return uv, z
+
+
+def frame_points(points: np.ndarray, size: tuple[int, int], azimuth: float, elevation: float,
+                 fill: float = 0.85, margin: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A camera that keeps ``points`` [N, 3] in view from any orbit angle (radians): it looks at the
+    centre of their bounding box from a distance of 3 bounding-sphere radii (``margin`` m added), with
+    the focal length that makes the sphere span ``fill`` of the shorter image side.
+    size: (width, height). -> (K [3, 3], viewmat [4, 4], center [3])."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0 or not np.all(np.isfinite(points)):
+        raise ValueError(f"points: need finite points to frame, got {len(points)} point(s)")
+    if not 0 < fill <= 1:
+        raise ValueError(f"fill: must lie in (0, 1], got {fill}")
+    width, height = size
+    center = 0.5 * (points.min(0) + points.max(0))
+    radius = float(np.linalg.norm(points - center, axis=1).max()) + margin
+    distance = 3.0 * radius
+    half = np.tan(np.arcsin(radius / distance))  # tangent of the sphere's angular radius
+    f = 0.5 * fill * min(width, height) / half
+    K = intrinsics(f, f, width / 2, height / 2)
+    return K, orbit_viewmat(center, azimuth, elevation, distance), center

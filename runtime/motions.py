@@ -1,7 +1,10 @@
 """Procedural motions for a named skeleton (Anny joint names), in numpy.
 
 A motion is per-frame axis-angle poses [T, J, 3] and root translations [T, 3] in the convention
-of trioman.runtime.skeleton (world-aligned axes; z up; the subject faces -y, its left is +x).
+of trioman.runtime.skeleton (world-aligned axes; z up; the subject faces -y, its left is +x), with
+the joint names it was made for and a frame rate. ``MOTIONS`` are the shipped procedural motions
+(walk, wave, squat, turn, jump, step, arms_raised), each a function (skeleton, frames) -> Motion;
+``Motion.for_skeleton`` maps a motion onto another skeleton's joint order by name.
 Rotation signs on this skeleton: about +y lowers the left arm and raises the right; about -x
 swings a leg or arm forward; about +x bends a knee.
 """
@@ -16,15 +19,38 @@ import numpy as np
 from trioman.runtime.skeleton import Skeleton
 
 
+DEFAULT_FPS = 30.0
+
+
 @dataclass(frozen=True, eq=False)
 class Motion:
     name: str
     pose: np.ndarray  # [T, J, 3] axis-angle
     trans: np.ndarray  # [T, 3]
+    joint_names: tuple[str, ...] | None = None  # [J] the joints of ``pose``; None: the skeleton's order
+    fps: float = DEFAULT_FPS
 
     @property
     def num_frames(self) -> int:
         return len(self.pose)
+
+    def for_skeleton(self, skeleton: Skeleton) -> "Motion":
+        """This motion in ``skeleton``'s joint order: joints matched by name, joints the motion does not
+        name keep their rest rotation. A joint the skeleton lacks is an error naming it."""
+        names = self.joint_names
+        if names is None or tuple(names) == skeleton.joint_names:
+            if self.pose.shape[1] != skeleton.num_joints:
+                raise ValueError(f"pose: motion {self.name!r} has {self.pose.shape[1]} joints, the skeleton "
+                                 f"{skeleton.num_joints} (and the motion names none)")
+            return Motion(self.name, self.pose, self.trans, skeleton.joint_names, self.fps)
+        unknown = [n for n in names if n not in skeleton.joint_names]
+        if unknown:
+            shown = ", ".join(repr(n) for n in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
+            raise ValueError(f"joint_names: {len(unknown)} joint(s) of motion {self.name!r} are not in the "
+                             f"avatar's skeleton ({skeleton.num_joints} joints): {shown}")
+        pose = np.zeros((self.num_frames, skeleton.num_joints, 3), dtype=self.pose.dtype)
+        pose[:, [skeleton.index(n) for n in names]] = self.pose
+        return Motion(self.name, pose, self.trans, skeleton.joint_names, self.fps)
 
 
 def _phase(frames: int) -> np.ndarray:
@@ -60,7 +86,7 @@ class _Builder:
         G = self.skeleton.forward_kinematics(self.pose, self.trans)
         rest_low = self.skeleton.joints[feet, 2].min()
         self.trans[:, 2] += rest_low - G[:, feet, 2, 3].min(axis=1)
-        return Motion(name, self.pose, self.trans)
+        return Motion(name, self.pose, self.trans, self.skeleton.joint_names)
 
 
 def turn_in_place(skeleton: Skeleton, frames: int, turns: float = 1.0) -> Motion:
@@ -125,9 +151,63 @@ def wave(skeleton: Skeleton, frames: int) -> Motion:
     return b.grounded("test_wave")
 
 
+def walk(skeleton: Skeleton, frames: int, cycles: float = 2.0, speed: float = 1.1) -> Motion:
+    """Walking forward (towards -y, the way the subject faces) at ``speed`` m/s and 30 fps, arms
+    swinging in opposition; ``cycles`` strides of both legs over the clip."""
+    t = _phase(frames)
+    w = 2 * np.pi * cycles * t
+    b = _Builder(skeleton, frames)
+    b.sym("upperleg01", 0, -0.45 * np.sin(w), 0.45 * np.sin(w))
+    # the knee bends while its leg swings forward (the hip angle's rate is cos w)
+    b.sym("lowerleg01", 0, 0.05 + 0.7 * np.maximum(np.cos(w), 0) ** 2, 0.05 + 0.7 * np.maximum(-np.cos(w), 0) ** 2)
+    b.sym("foot", 0, -0.15 * np.sin(w), 0.15 * np.sin(w))
+    b.sym("upperarm01", 1, 0.35, -0.35)  # arms down by the sides
+    b.sym("upperarm01", 0, 0.4 * np.sin(w), -0.4 * np.sin(w))
+    b.sym("lowerarm01", 0, -0.25 - 0.15 * np.sin(w), -0.25 + 0.15 * np.sin(w))
+    b.rot("spine01", 2, 0.08 * np.sin(w))
+    b.trans[:, 1] = -speed * np.arange(frames) / DEFAULT_FPS
+    return b.grounded("walk")
+
+
+def jump(skeleton: Skeleton, frames: int, height: float = 0.35) -> Motion:
+    """A standing jump: crouch, take off with the arms swinging up, fly ``height`` m, land and recover."""
+    t = _phase(frames)
+    crouch = np.sin(np.pi * np.clip(t / 0.3, 0, 1)) ** 2 + np.sin(np.pi * np.clip((t - 0.7) / 0.3, 0, 1)) ** 2
+    air = np.clip((t - 0.3) / 0.4, 0, 1)
+    b = _Builder(skeleton, frames)
+    b.sym("upperleg01", 0, -0.9 * crouch, -0.9 * crouch)
+    b.sym("lowerleg01", 0, 1.4 * crouch + 0.3 * np.sin(np.pi * air), 1.4 * crouch + 0.3 * np.sin(np.pi * air))
+    b.sym("foot", 0, -0.5 * crouch + 0.4 * np.sin(np.pi * air), -0.5 * crouch + 0.4 * np.sin(np.pi * air))
+    b.rot("spine04", 0, -0.3 * crouch)
+    swing = np.where(t < 0.3, 0.6 * crouch, -1.8 * np.sin(np.pi * air) + 0.6 * crouch)
+    b.sym("upperarm01", 0, swing, swing)
+    b.sym("upperarm01", 1, 0.3, -0.3)
+    m = b.grounded("jump")
+    m.trans[:, 2] += 4 * height * air * (1 - air)  # the flight, after grounding
+    return m
+
+
+def turn(skeleton: Skeleton, frames: int) -> Motion:
+    """One full turn in place (the synthetic subjects' training motion)."""
+    m = turn_in_place(skeleton, frames)
+    return Motion("turn", m.pose, m.trans, m.joint_names, m.fps)
+
+
 TEST_MOTIONS: dict[str, Callable[[Skeleton, int], Motion]] = {
     "arms_raised": arms_raised,
     "squat": squat,
     "step": step,
     "wave": wave,
 }
+
+# The shipped procedural motions, by name (``trioman animate --motion NAME``), with default lengths.
+MOTIONS: dict[str, Callable[[Skeleton, int], Motion]] = {
+    "walk": walk,
+    "wave": wave,
+    "squat": squat,
+    "turn": turn,
+    "jump": jump,
+    "step": step,
+    "arms_raised": arms_raised,
+}
+DEFAULT_FRAMES = {"walk": 60, "wave": 60, "squat": 60, "turn": 90, "jump": 45, "step": 45, "arms_raised": 45}

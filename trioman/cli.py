@@ -31,6 +31,8 @@ COMMANDS = (
     Command("synth", "trioman.toolkit.synth.command", "render a synthetic subject (monocular video + poses + cameras)", "train"),
     Command("train", "trioman.toolkit.train.command", "train a Gaussian avatar on a subject", "train"),
     Command("eval", "trioman.toolkit.eval_command", "evaluate a trained avatar: metrics, grid, video", "train"),
+    Command("animate", "trioman.runtime.animate", "animate an exported avatar with a motion, as an MP4 (no torch)"),
+    Command("render", "trioman.runtime.render_command", "render one image of an exported avatar (no torch)"),
     Command("inspect", "trioman.runtime.inspect", "validate a subject folder and print a summary"),
     Command("bench", "trioman.toolkit.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )

@@ -1,0 +1,105 @@
+"""``trioman render AVATAR --pose P --camera C --out img.png``: one image of an avatar, no torch.
+
+--pose:   ``rest``; ``MOTION@I``, frame I of a shipped motion or a motion .npz (``@I`` optional, 0);
+          ``SUBJECT@I``, frame I of a subject folder (its stored pose).
+--camera: ``front`` (default), ``AZ,EL`` in degrees about the posed body (0,0 = in front, framed to
+          fit), or ``subject`` (the camera of the subject frame given with --pose).
+
+Module contract (trioman/cli.py): standard-library imports only at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("avatar", metavar="AVATAR", help="avatar folder (trioman export avatar)")
+    parser.add_argument("--pose", default="rest", help="rest | MOTION[@FRAME] | SUBJECT@FRAME (default rest)")
+    parser.add_argument("--camera", default="front", help="front | AZ,EL (degrees) | subject (default front)")
+    parser.add_argument("--out", required=True, help="output PNG path")
+    parser.add_argument("--size", type=int, default=None, help="image side in pixels (default 512; subject camera: its size)")
+    parser.add_argument("--background", default="1,1,1", help="r,g,b in [0, 1] (default white)")
+    parser.add_argument("--no-pose-dependent", action="store_true", help="skip the avatar's pose-dependent deltas")
+
+
+def _split_frame(spec: str) -> tuple[str, int]:
+    source, sep, frame = spec.rpartition("@")
+    if not sep:
+        return spec, 0
+    try:
+        return source, int(frame)
+    except ValueError:
+        raise ValueError(f"--pose: frame after '@' must be an integer, got {frame!r} in {spec!r}") from None
+
+
+def resolve_pose(spec: str, skeleton):
+    """-> (pose [J, 3], trans [3], subject camera (K, viewmat, width, height) or None)."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from trioman.runtime.formats import load_subject
+    from trioman.runtime.formats.motion import motion_from_spec
+    from trioman.runtime.motions import Motion
+
+    if spec == "rest":
+        return np.zeros((skeleton.num_joints, 3)), np.zeros(3), None
+    source, i = _split_frame(spec)
+    if Path(source).is_dir():
+        subject = load_subject(source, check_images=False)
+        if not 0 <= i < subject.num_frames:
+            raise ValueError(f"--pose: frame {i} is out of range for {source} ({subject.num_frames} frames)")
+        frames = Motion(source, np.array(subject.poses), np.array(subject.trans),
+                        subject.body.skeleton.joint_names).for_skeleton(skeleton)  # joints matched by name
+        cam = (np.array(subject.K[i]), np.array(subject.viewmat[i]), subject.width, subject.height)
+        return frames.pose[i], frames.trans[i], cam
+    motion = motion_from_spec(source, skeleton)
+    if not 0 <= i < motion.num_frames:
+        raise ValueError(f"--pose: frame {i} is out of range for {source!r} ({motion.num_frames} frames)")
+    return motion.pose[i], motion.trans[i], None
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    import numpy as np
+
+    from trioman.runtime.animate import check_size, parse_background
+    from trioman.runtime.cameras import frame_points
+    from trioman.runtime.formats import load_avatar
+    from trioman.runtime.image_io import write_png
+    from trioman.runtime.render import rasterize
+
+    bg = parse_background(args.background)
+    out = Path(args.out)
+    if not out.parent.is_dir():
+        raise FileNotFoundError(f"--out: the folder {out.parent} does not exist")
+    avatar = load_avatar(args.avatar)
+    pose, trans, subject_cam = resolve_pose(args.pose, avatar.skeleton)
+    t0 = time.perf_counter()
+    g = avatar.gaussians(pose, trans, pose_dependent=not args.no_pose_dependent)
+    if args.camera == "subject":
+        if subject_cam is None:
+            raise ValueError("--camera: 'subject' needs --pose SUBJECT@FRAME (the camera comes from that frame)")
+        K, viewmat, width, height = subject_cam
+        if args.size is not None:  # keep the view, change the resolution
+            s = check_size(args.size) / max(width, height)
+            K = K.copy()
+            K[:2] *= s
+            width, height = round(width * s), round(height * s)
+    else:
+        if args.camera == "front":
+            az, el = 0.0, 5.0
+        else:
+            try:
+                az, el = (float(v) for v in args.camera.split(","))
+            except ValueError:
+                raise ValueError(f"--camera: expected front, subject or AZ,EL in degrees, got {args.camera!r}") from None
+        width = height = check_size(args.size or 512)
+        K, viewmat, _ = frame_points(g.means, (width, height), np.deg2rad(az), np.deg2rad(el))
+    img = rasterize(*g, viewmat, K, width, height, background=bg).rgb
+    write_png(out, img)
+    print(f"render: {out} ({width}x{height}, {avatar.num_gaussians} Gaussians, {1000 * (time.perf_counter() - t0):.0f} ms)")
+    return 0
