@@ -32,6 +32,8 @@ class TrainConfig:
     lr_decay_at: tuple[float, float] = (0.75, 0.95)  # x0.1 then x0.01 at these fractions of the run
     image_scale: float = 1.0  # train on images resized by this factor (K scaled to match)
     supervise_plain: bool = False  # also render and supervise the pose-independent set (ExAvatar does)
+    frames: str = "train"  # the frames trained on: "train" (the train split) or "all" (every frame)
+    frame_stride: int = 1  # keep every frame_stride-th of those frames (a subset, for coarse-render corpora)
     random_background: bool = True
     checkpoint_every: int = 250
     keep_checkpoints: int = 2
@@ -44,6 +46,10 @@ class TrainConfig:
             raise ValueError(f"iterations: must be >= 1, got {self.iterations}")
         if not 0.05 <= self.image_scale <= 1.0:
             raise ValueError(f"image_scale: must lie in [0.05, 1], got {self.image_scale}")
+        if self.frames not in ("train", "all"):
+            raise ValueError(f"frames: expected 'train' or 'all', got {self.frames!r}")
+        if self.frame_stride < 1:
+            raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
         if not self.lr > 0:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
 

@@ -33,9 +33,9 @@ class FrameSet:
         return len(self.indices)
 
 
-def load_frames(subject: Subject, split: str, scale: float = 1.0) -> FrameSet:
-    """Load every frame of ``split`` (train or test) into memory, resized by ``scale``."""
-    idx = subject.indices(split)
+def load_frames(subject: Subject, split: str | None, scale: float = 1.0, stride: int = 1) -> FrameSet:
+    """Load every ``stride``-th frame of ``split`` (train, test or None for all) into memory, resized by ``scale``."""
+    idx = subject.indices(split)[::stride]
     if len(idx) == 0:
         raise ValueError(f"split: subject {subject.root} has no {split!r} frames")
     W, H = max(1, round(subject.width * scale)), max(1, round(subject.height * scale))

@@ -97,7 +97,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
     subject = load_subject(subject_path)
     cfg = _prepare_run(run, subject_path, cfg, resume)
-    frames = load_frames(subject, "train", cfg.image_scale)
+    frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
     model = GaussianAvatar(subject.body, cfg.avatar)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)

@@ -1,0 +1,69 @@
+"""Triplets for the Refiner/Examiner: built from a tiny run, sampled within sequences, evaluated against
+the nearest-view training frame; frame subsets for baselines."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("anny")
+
+from tests.toolkit.train.test_loop import TINY_AVATAR  # noqa: E402
+from trioman.runtime.formats import FormatError, load_subject  # noqa: E402
+from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
+from trioman.toolkit.train.config import TrainConfig  # noqa: E402
+from trioman.toolkit.train.data import load_frames  # noqa: E402
+from trioman.toolkit.train.loop import train  # noqa: E402
+from trioman.toolkit.triplets import TripletSet, build_triplets, view_yaw  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def triplet_file(tmp_path_factory):
+    root = tmp_path_factory.mktemp("trip")
+    subject = synthesize_subject(SynthConfig(seed=3, size=32, frames=14, texture_size=256), root / "s", progress=False)
+    cfg = TrainConfig(iterations=3, checkpoint_every=3, frames="all", avatar=TINY_AVATAR)
+    run = train(subject.root, root / "run", cfg, progress=False)
+    return build_triplets(run, root / "t.npz", progress=False), subject
+
+
+def test_triplet_file_contents(triplet_file):
+    path, subject = triplet_file
+    ts = TripletSet.load([path])
+    assert len(ts) == subject.num_frames and ts.gt.shape == (14, 32, 32, 3) and ts.normal.dtype == np.uint8
+    np.testing.assert_array_equal(ts.gt[5], np.rint(subject.image(5) * 255).astype(np.uint8))
+    fg = ts.mask[0] > 128
+    assert fg.any() and np.abs(ts.normal[0][fg].astype(int) - 128).max() > 40  # normals drawn on the body
+    assert np.all(ts.normal[0][~fg & (ts.mask[0] == 0)] == 0)
+
+
+def test_sampling_pairs_frames_of_one_sequence(triplet_file):
+    ts = TripletSet.load([triplet_file[0]])
+    for i in range(len(ts)):
+        p = ts.partners(i, 3)
+        assert np.all(np.abs(p - i) <= 3) and i not in p and np.all(ts.group[p] == ts.group[i])
+    b = ts.sample(np.random.default_rng(0), 6, k_max=2, split="train")
+    assert b.gt.shape == (6, 32, 32, 3) and b.gt.dtype == np.float32 and 0 <= b.gt.min() and b.gt.max() <= 1
+    a = ts.sample(np.random.default_rng(0), 6, k_max=2, split="train")
+    np.testing.assert_array_equal(a.reference, b.reference)
+    ev = ts.evaluation("test")
+    assert len(ev.gt) == int((ts.split == "test").sum())
+
+
+def test_nearest_view_and_yaw():
+    # a body facing the camera has yaw 0; turned by 90 degrees about z, +-pi/2
+    from trioman.runtime.cameras import orbit_viewmat
+
+    vm = orbit_viewmat(np.zeros(3), 0.0, 0.0, 3.0)[None]
+    assert abs(view_yaw(np.zeros((1, 3)), vm)[0]) < 1e-6
+    assert abs(abs(view_yaw(np.array([[0, 0, np.pi / 2]]), vm)[0]) - np.pi / 2) < 1e-6
+    assert abs(abs(view_yaw(np.array([[0, 0, np.pi]]), vm)[0]) - np.pi) < 1e-6
+
+
+def test_frame_subset_and_bad_files(triplet_file, tmp_path):
+    subject = load_subject(triplet_file[1].root)
+    assert len(load_frames(subject, None, stride=3)) == len(range(0, 14, 3))
+    with pytest.raises(ValueError, match="frames: expected 'train' or 'all'"):
+        TrainConfig(frames="some")
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, gt=np.zeros((1, 2, 2, 3), np.uint8))
+    with pytest.raises(FormatError, match="meta: missing array"):
+        TripletSet.load([bad])

@@ -1,0 +1,100 @@
+"""``trioman synth-corpus``: synthetic subjects for training and evaluating the Refiner and Examiner.
+
+The paper trains them on 17 X-Humans subjects and evaluates on 3 others; here: ``train_subjects``
+synthetic subjects (default 10) and ``heldout_subjects`` (default 2), each with a baseline avatar and
+a triplet file (toolkit/triplets.py). Baselines of training subjects are trained on ``baseline_frames``:
+"all" frames (the paper's choice: coarse frames carry reconstruction error only) or "subset" (every
+``subset_stride``-th frame, so most coarse frames carry real novel-pose error). Held-out subjects'
+baselines see their train split only, and evaluation uses their test frames (novel poses and views).
+
+Layout: DIR/corpus.json, DIR/subjects/sNN/, DIR/runs/<baseline_frames>/sNN/, DIR/triplets/<baseline_frames>/sNN.npz.
+Every piece is written atomically and skipped when already complete, so an interrupted build resumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+CORPUS_JSON = "corpus.json"
+
+
+@dataclass(frozen=True)
+class CorpusConfig:
+    train_subjects: int = 10
+    heldout_subjects: int = 2
+    size: int = 128
+    frames: int = 96
+    seed: int = 1000  # subject i has seed + i
+    iterations: int = 600  # baseline training iterations (quick preset otherwise)
+    baseline_frames: str = "all"  # "all" | "subset" (training subjects; held-out: train split)
+    subset_stride: int = 4
+
+    def __post_init__(self) -> None:
+        if self.train_subjects < 1 or self.heldout_subjects < 1:
+            raise ValueError(f"train_subjects/heldout_subjects: need >= 1 each, got {self.train_subjects}/{self.heldout_subjects}")
+        if self.baseline_frames not in ("all", "subset"):
+            raise ValueError(f"baseline_frames: expected 'all' or 'subset', got {self.baseline_frames!r}")
+        if self.iterations < 1 or self.subset_stride < 1:
+            raise ValueError(f"iterations/subset_stride: must be >= 1, got {self.iterations}/{self.subset_stride}")
+
+    @property
+    def names(self) -> list[tuple[str, str]]:
+        """(name, role) per subject, role "train" or "heldout"."""
+        n = self.train_subjects + self.heldout_subjects
+        return [(f"s{i:02d}", "train" if i < self.train_subjects else "heldout") for i in range(n)]
+
+
+def _finished(run: Path, iterations: int) -> bool:
+    from trioman.toolkit.train.checkpoint import latest_checkpoint
+
+    ckpt = latest_checkpoint(run) if (run / "config.json").exists() else None
+    return ckpt is not None and int(ckpt.stem.split("_")[-1]) >= iterations
+
+
+def triplet_paths(root: str | Path, baseline_frames: str = "all") -> dict[str, list[Path]]:
+    """The triplet files of a built corpus by role: {"train": [...], "heldout": [...]}."""
+    root = Path(root)
+    meta = json.loads((root / CORPUS_JSON).read_text())
+    out: dict[str, list[Path]] = {"train": [], "heldout": []}
+    for s in meta["subjects"]:
+        p = root / "triplets" / baseline_frames / f"{s['name']}.npz"
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: missing triplet file (build the corpus with --baseline-frames {baseline_frames})")
+        out[s["role"]].append(p)
+    return out
+
+
+def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True) -> Path:
+    from trioman.runtime.image_io import atomic_write_text
+    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
+    from trioman.toolkit.train.config import preset
+    from trioman.toolkit.train.loop import train
+    from trioman.toolkit.triplets import build_triplets
+
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    for sub in ("subjects", f"runs/{cfg.baseline_frames}", f"triplets/{cfg.baseline_frames}"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    subjects = []
+    for i, (name, role) in enumerate(cfg.names):
+        subject = root / "subjects" / name
+        if not (subject / "subject.json").is_file():
+            synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames), subject, progress=progress)
+        run = root / "runs" / cfg.baseline_frames / name
+        if not _finished(run, cfg.iterations):
+            frames = {"frames": "all"} if role == "train" else {}
+            if role == "train" and cfg.baseline_frames == "subset":
+                frames["frame_stride"] = cfg.subset_stride
+            train_cfg = preset("quick", iterations=cfg.iterations, checkpoint_every=cfg.iterations, **frames)
+            train(subject, run, train_cfg, resume=(run / "config.json").exists(), progress=progress)
+        trip = root / "triplets" / cfg.baseline_frames / f"{name}.npz"
+        if not trip.is_file():
+            build_triplets(run, trip, progress=progress)
+        subjects.append({"name": name, "role": role, "seed": cfg.seed + i})
+        if progress:
+            print(f"synth-corpus: {name} ({role}) done: {trip}")
+    atomic_write_text(root / CORPUS_JSON, json.dumps({"config": dataclasses.asdict(cfg), "subjects": subjects}, indent=2) + "\n")
+    return root

@@ -1,0 +1,169 @@
+"""Data construction for the Refiner and Examiner (paper 3.2.4): per subject frame T, the GT I^T, the
+baseline avatar's coarse render I_c^T at the same pose and camera, the body normal map I_g^T, and
+(at sampling time) a GT I^{T+k} from the same sequence with 0 < |k| <= K.
+
+A triplet file is one .npz of plain arrays (no pickle):
+
+    meta      0-d str   JSON: subject, run, checkpoint step, image size, background, format version
+    gt        [N, H, W, 3] uint8   the subject's frames
+    mask      [N, H, W]    uint8   their masks
+    coarse    [N, H, W, 3] uint8   the avatar (refined set) at the frame's pose and camera, same background
+    normal    [N, H, W, 3] uint8   camera-space body normals (runtime.normal_map encoding)
+    frame     [N] int32    subject frame index
+    split     [N] str      "train" / "test"
+    sequence  [N] str      motion sequence
+    view_yaw  [N] float32  the body's facing direction seen from the camera (radians, 0 = facing it)
+
+``TripletSet`` samples training tuples and, for evaluation on test frames, picks as texture reference
+the training frame that sees the body from the most similar direction (what the runtime's augment
+has: a real frame of the subject near the novel view).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from trioman.runtime.formats.common import FormatError, _load_npz
+from trioman.runtime.image_io import atomic_path
+from trioman.runtime.normal_map import body_normal_map
+from trioman.runtime.rotations import axis_angle_to_matrix
+
+TRIPLETS_VERSION = 1
+_ARRAYS = ("meta", "gt", "mask", "coarse", "normal", "frame", "split", "sequence", "view_yaw")
+_FORWARD = np.array([0.0, -1.0, 0.0])  # the rest body faces -y (runtime/cameras.py)
+
+
+def view_yaw(root_pose: np.ndarray, viewmat: np.ndarray) -> np.ndarray:
+    """Azimuth of the body's facing direction in camera coordinates. [N, 3], [N, 4, 4] -> [N] radians,
+    0 when the body faces the camera, +-pi when it shows its back."""
+    facing = axis_angle_to_matrix(root_pose) @ _FORWARD  # world
+    cam = np.einsum("nab,nb->na", viewmat[:, :3, :3], facing)
+    return np.arctan2(cam[:, 0], -cam[:, 2]).astype(np.float32)
+
+
+def _u8(img: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+
+
+def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> Path:
+    """Render coarse frames and normal maps for every frame of the run's subject into ``out`` (.npz)."""
+    import torch
+    from tqdm import tqdm
+
+    from trioman.toolkit.evaluate import load_run, render_frame
+
+    model, subject, _, step = load_run(run)
+    bg = subject.background
+    n, H, W = subject.num_frames, subject.height, subject.width
+    arrays = {k: np.empty((n, H, W, 3), np.uint8) for k in ("gt", "coarse", "normal")}
+    arrays["mask"] = np.empty((n, H, W), np.uint8)
+    for i in tqdm(range(n), desc="triplets", unit="frame", disable=None if progress else True):
+        arrays["gt"][i] = _u8(subject.image(i))
+        arrays["mask"][i] = _u8(subject.mask(i))
+        arrays["coarse"][i] = _u8(render_frame(model, subject, i, torch.from_numpy(bg)))
+        nm = body_normal_map(subject.body, subject.poses[i], subject.trans[i], subject.viewmat[i], subject.K[i], W, H)
+        arrays["normal"][i] = _u8(nm.rgb)
+    meta = {"version": TRIPLETS_VERSION, "subject": str(subject.root), "run": str(run), "step": step,
+            "width": W, "height": H, "background": bg.tolist()}
+    arrays.update(
+        meta=np.array(json.dumps(meta)), frame=np.arange(n, dtype=np.int32),
+        split=np.array(subject.split, dtype=np.str_), sequence=np.array(subject.sequence, dtype=np.str_),
+        view_yaw=view_yaw(np.array(subject.poses[:, 0]), np.array(subject.viewmat)),
+    )
+    out = Path(out)
+    with atomic_path(out, suffix=".npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+    return out
+
+
+class Tuples(NamedTuple):
+    """Float32 NHWC images in [0, 1]: the data of one batch."""
+
+    gt: np.ndarray  # [B, H, W, 3] I^T
+    coarse: np.ndarray  # [B, H, W, 3] I_c^T
+    normal: np.ndarray  # [B, H, W, 3] I_g^T
+    reference: np.ndarray  # [B, H, W, 3] I^{T+k} (or the nearest-view training frame)
+    mask: np.ndarray  # [B, H, W] mask of I^T
+
+
+@dataclass(eq=False)
+class TripletSet:
+    """Triplets of one or more subjects, in memory (uint8)."""
+
+    gt: np.ndarray
+    mask: np.ndarray
+    coarse: np.ndarray
+    normal: np.ndarray
+    split: np.ndarray
+    group: np.ndarray  # [N] "<file index>/<sequence>": frames that may pair as T and T+k
+    subject: np.ndarray  # [N] file index
+    view_yaw: np.ndarray
+
+    @classmethod
+    def load(cls, paths: list[str | Path]) -> "TripletSet":
+        parts = []
+        for s, p in enumerate(paths):
+            a = _load_npz(Path(p))
+            for key in _ARRAYS:
+                if key not in a:
+                    raise FormatError(f"{p}: {key}: missing array (not a triplet file?)")
+            n = len(a["frame"])
+            for key in ("gt", "coarse", "normal", "mask", "split", "sequence", "view_yaw"):
+                if len(a[key]) != n:
+                    raise FormatError(f"{p}: {key}: {len(a[key])} entries for {n} frames")
+            a["group"] = np.char.add(f"{s}/", a["sequence"])
+            a["subject"] = np.full(n, s, np.int32)
+            parts.append(a)
+        if not parts:
+            raise ValueError("paths: no triplet files given")
+        shapes = {x["gt"].shape[1:] for x in parts}
+        if len(shapes) != 1:
+            raise FormatError(f"triplets: image sizes differ between files: {sorted(shapes)}")
+        cat = {k: np.concatenate([x[k] for x in parts]) for k in
+               ("gt", "mask", "coarse", "normal", "split", "group", "subject", "view_yaw")}
+        return cls(**cat)
+
+    def __len__(self) -> int:
+        return len(self.gt)
+
+    def partners(self, i: int, k_max: int) -> np.ndarray:
+        """Frames T+k of the same subject and sequence with 0 < |k| <= k_max (by position in the file)."""
+        lo, hi = max(0, i - k_max), min(len(self), i + k_max + 1)
+        idx = np.arange(lo, hi)
+        return idx[(idx != i) & (self.group[idx] == self.group[i])]
+
+    def nearest_view(self, i: int) -> int:
+        """The training frame of the same subject whose view of the body is closest to frame i's."""
+        cand = np.nonzero((self.subject == self.subject[i]) & (self.split == "train"))[0]
+        cand = cand[cand != i]
+        if len(cand) == 0:
+            raise ValueError(f"triplets: subject {self.subject[i]} has no training frame to use as reference")
+        d = np.angle(np.exp(1j * (self.view_yaw[cand] - self.view_yaw[i])))
+        return int(cand[np.argmin(np.abs(d))])
+
+    def take(self, t: np.ndarray, ref: np.ndarray) -> Tuples:
+        f = np.float32(1.0 / 255.0)
+        return Tuples(self.gt[t] * f, self.coarse[t] * f, self.normal[t] * f, self.gt[ref] * f, self.mask[t] * f)
+
+    def sample(self, rng: np.random.Generator, batch: int, k_max: int = 4, split: str | None = None) -> Tuples:
+        """A random batch: T uniform over the frames (of ``split`` if given), T+k uniform over partners."""
+        pool = np.arange(len(self)) if split is None else np.nonzero(self.split == split)[0]
+        if len(pool) == 0:
+            raise ValueError(f"split: no {split!r} frames in the triplets")
+        t = rng.choice(pool, size=batch)
+        ref = np.empty_like(t)
+        for j, i in enumerate(t):
+            p = self.partners(int(i), k_max)
+            ref[j] = rng.choice(p) if len(p) else i
+        return self.take(t, ref)
+
+    def evaluation(self, split: str = "test") -> Tuples:
+        """Every frame of ``split`` with its nearest-view training frame as reference."""
+        t = np.nonzero(self.split == split)[0]
+        return self.take(t, np.array([self.nearest_view(int(i)) for i in t], dtype=np.int64))
