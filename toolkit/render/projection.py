@@ -20,11 +20,14 @@ from typing import NamedTuple
 
 import torch
 
-ALPHA_THRESHOLD = 1.0 / 255.0  # skip alpha below this; cull opacity below this
-MAX_ALPHA = 0.99  # per-pixel alpha cap (gsplat >= 1.6; 0.999 in gsplat <= 1.5.3)
-TRANSMITTANCE_THRESHOLD = 1e-4  # stop when T (1 - alpha) <= this, that Gaussian excluded
-EPS2D = 0.3  # px^2 added to the 2D covariance diagonal
-MAX_EXTENT = 3.33  # sigmas; never active for opacity <= 1 (sqrt(2 ln 255) = 3.3290 < 3.33)
+# The semantics' constants, defined once for both renderers (runtime/render/projection.py).
+from trioman.runtime.render.projection import (  # noqa: F401 (re-exported for the toolkit renderer)
+    ALPHA_THRESHOLD,
+    EPS2D,
+    MAX_ALPHA,
+    MAX_EXTENT,
+    TRANSMITTANCE_THRESHOLD,
+)
 
 
 class Projection(NamedTuple):

@@ -1,0 +1,186 @@
+"""Input checks and the EWA projection of 3D Gaussians to the image (gsplat's semantics, DESIGN.md).
+
+The numpy twin of ``trioman.toolkit.render.projection``: the same float64 arithmetic and the same two
+numerically careful choices, so extreme Gaussians (scales 1e-6 .. 1e2 m, anisotropy 1e6, centres on
+the near plane) stay accurate:
+
+- the 2D covariance is kept in factored form, Sigma2d = N N^T + eps2d I with N = J R_view R S
+  (2 x 3), and its determinant is eps2d^2 + eps2d tr(N N^T) + |n_0 x n_1|^2 (Cauchy-Binet), a sum of
+  non-negative terms, instead of a c - b^2, which cancels catastrophically for thin Gaussians;
+- sigma = 0.5 (A dx^2 + C dy^2) + B dx dy is evaluated as 0.5 (u^2 + v^2) with u = a dx + b dy,
+  v = c dy, the Cholesky factor of the conic [[A, B], [B, C]] = L^T L, L = [[a, b], [0, c]]:
+  a = sqrt(Sigma11 / det), b = -Sigma01 / sqrt(det Sigma11), c = 1 / sqrt(Sigma11).
+
+Culling is cheap first: the centre's depth and the opacity, then a conservative screen bound from
+the largest scale (:func:`_bound_radii`), and only the survivors get covariances. The cost therefore
+follows what the view needs, not N.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import NamedTuple
+
+import numpy as np
+
+from trioman.runtime.rotations import quat_to_matrix
+
+ALPHA_THRESHOLD = 1.0 / 255.0  # skip alpha below this; cull opacity below this
+MAX_ALPHA = 0.99  # per-pixel alpha cap
+TRANSMITTANCE_THRESHOLD = 1e-4  # stop when T (1 - alpha) <= this, that Gaussian excluded
+EPS2D = 0.3  # px^2 added to the 2D covariance diagonal
+MAX_EXTENT = 3.33  # sigmas; never active for opacity <= 1 (sqrt(2 ln 255) = 3.3290 < 3.33)
+
+_F32 = np.float32
+
+
+class Projected(NamedTuple):
+    """Float64 screen-space values of the M Gaussians that reach the image, in input order."""
+
+    ids: np.ndarray  # [M] int64 indices into the N inputs
+    means2d: np.ndarray  # [M, 2] pixels
+    chol: np.ndarray  # [M, 3] (a, b, c): sigma = 0.5 ((a dx + b dy)^2 + (c dy)^2)
+    depths: np.ndarray  # [M] camera z of the centre
+    radii: np.ndarray  # [M, 2] whole numbers: the box |dx| <= r_x, |dy| <= r_y
+
+
+# --------------------------------------------------------------------------------------------
+# input checks
+
+
+def _check_size(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name}: must be a positive int, got {value!r}")
+    if value <= 0:
+        raise ValueError(f"{name}: must be a positive int, got {value}")
+    return int(value)
+
+
+def _check_array(name: str, x, shape: tuple) -> np.ndarray:
+    """shape: ints, or None for 'any'. -> the array (not copied); ValueError naming ``name``."""
+    a = np.asarray(x)
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: expected a real-valued array, got dtype {a.dtype}")
+    want = "[" + ", ".join("N" if s is None else str(s) for s in shape) + "]"
+    if a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape)):
+        raise ValueError(f"{name}: expected shape {want}, got {list(a.shape)}")
+    if a.dtype.kind == "f":
+        bad = a.size - int(np.count_nonzero(np.isfinite(a)))
+        if bad:
+            raise ValueError(f"{name}: {bad} of {a.size} values are NaN or Inf")
+    return a
+
+
+def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height, background=None,
+                 near_plane: float = 0.01, far_plane: float = 1e10) -> tuple[list[np.ndarray], int, int]:
+    """Validate the renderer's inputs (ValueError naming the argument and the count).
+
+    -> ([means, quats, scales, opacities, colors, viewmat, K, background or None] as arrays, W, H).
+    """
+    width = _check_size("width", width)
+    height = _check_size("height", height)
+    means = _check_array("means", means, (None, 3))
+    n = means.shape[0]
+    arrays = [means, _check_array("quats", quats, (n, 4)), _check_array("scales", scales, (n, 3)),
+              _check_array("opacities", opacities, (n,)), _check_array("colors", colors, (n, 3)),
+              _check_array("viewmat", viewmat, (4, 4)), _check_array("K", K, (3, 3)),
+              None if background is None else _check_array("background", background, (3,))]
+    scales, opacities, K = arrays[2], arrays[3], arrays[6]
+    neg = int(np.count_nonzero(scales < 0))
+    if neg:
+        raise ValueError(f"scales: {neg} of {scales.size} values are negative (activated scales are >= 0)")
+    out = int(np.count_nonzero((opacities < 0) | (opacities > 1)))
+    if out:
+        raise ValueError(f"opacities: {out} of {opacities.size} values lie outside [0, 1]")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"K: focal lengths must be > 0, got fx={float(K[0, 0])}, fy={float(K[1, 1])}")
+    near, far = float(near_plane), float(far_plane)
+    if not (math.isfinite(near) and near > 0):
+        raise ValueError(f"near_plane: must be a finite number > 0, got {near_plane}")
+    if not (far > near):  # far may be inf
+        raise ValueError(f"far_plane: must be > near_plane ({near}), got {far_plane}")
+    return arrays, width, height
+
+
+# --------------------------------------------------------------------------------------------
+# projection
+
+
+def _rows(x: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """x[ids] in float64."""
+    return np.take(x, ids, axis=0).astype(np.float64)
+
+
+def _extent(opacities: np.ndarray) -> np.ndarray:
+    """Sigmas of the radius box: min(3.33, sqrt(2 ln(255 o))) (0 below o = 1/255). [M] -> [M]."""
+    with np.errstate(divide="ignore"):
+        return np.minimum(np.sqrt(np.maximum(2.0 * np.log(opacities * 255.0), 0.0)), MAX_EXTENT)
+
+
+def _bound_radii(smax: np.ndarray, z: np.ndarray, jx: np.ndarray, jy: np.ndarray, fx: float, fy: float,
+                 rv_norm: float, extent: np.ndarray) -> np.ndarray:
+    """Upper bounds of the radii [M, 2] from the largest scale alone.
+
+    Row 0 of N = J R_view R S is (fx / z) (e_x - (x'/z) e_z)^T R_view R S, whose norm is at most
+    (fx / z) sqrt(1 + (x'/z)^2) |R_view|_2 max(s) (R orthonormal); row 1 alike. The margin covers
+    rounding, so a Gaussian whose bounded box is off screen is off screen.
+    """
+    g = rv_norm * smax / z
+    var_x = (fx * g) ** 2 * (1.0 + jx * jx) + EPS2D
+    var_y = (fy * g) ** 2 * (1.0 + jy * jy) + EPS2D
+    return np.stack([np.ceil(extent * np.sqrt(var_x)), np.ceil(extent * np.sqrt(var_y))], -1) * (1 + 1e-9) + 1.0
+
+
+def project(
+    means: np.ndarray,  # [N, 3]
+    quats: np.ndarray,  # [N, 4] wxyz, normalised here (zero = identity)
+    scales: np.ndarray,  # [N, 3]
+    opacities: np.ndarray,  # [N]
+    viewmat: np.ndarray,  # [4, 4]
+    K: np.ndarray,  # [3, 3]
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+) -> Projected:
+    """Float64 EWA projection of the Gaussians whose radius box reaches the image (inputs checked)."""
+    f64 = np.float64
+    vm = np.asarray(viewmat, dtype=f64)
+    Kd = np.asarray(K, dtype=f64)
+    Rv, tv = vm[:3, :3], vm[:3, 3]
+    fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
+    # 1. centre depth and opacity (the opacity cull compares float32 values, like gsplat)
+    z_all = np.asarray(means, dtype=f64) @ Rv[2] + tv[2]
+    o32 = np.asarray(opacities, dtype=_F32)
+    ids = np.flatnonzero((z_all >= near_plane) & (z_all <= far_plane) & (o32 >= _F32(ALPHA_THRESHOLD)))
+    mc = _rows(means, ids) @ Rv.T + tv
+    tx, ty, tz = mc.T
+    tan_fovx, tan_fovy = 0.5 * width / fx, 0.5 * height / fy
+    jx = np.clip(tx / tz, -(cx / fx + 0.3 * tan_fovx), (width - cx) / fx + 0.3 * tan_fovx)
+    jy = np.clip(ty / tz, -(cy / fy + 0.3 * tan_fovy), (height - cy) / fy + 0.3 * tan_fovy)
+    mean2d = (mc[:, :2] @ Kd[:2, :2].T + Kd[:2, 2] * tz[:, None]) / tz[:, None]  # gsplat: K[:2] @ m / z
+    extent = _extent(_rows(opacities, ids))
+
+    def on_screen(m2, r):
+        return ((m2[:, 0] + r[:, 0] > 0) & (m2[:, 0] - r[:, 0] < width)
+                & (m2[:, 1] + r[:, 1] > 0) & (m2[:, 1] - r[:, 1] < height))
+
+    # 2. conservative screen bound from the largest scale
+    smax = _rows(scales, ids).max(1)
+    sel = np.flatnonzero(on_screen(mean2d, _bound_radii(smax, tz, jx, jy, fx, fy, np.linalg.norm(Rv, 2), extent)))
+    ids, tz, jx, jy, mean2d, extent = ids[sel], tz[sel], jx[sel], jy[sel], mean2d[sel], extent[sel]
+    # 3. covariances of the survivors; rows of N = J M: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]]
+    R = quat_to_matrix(_rows(quats, ids))
+    # M = R_view R S, stored transposed: Mt[:, k] = s_k R_view R[:, :, k] (one matrix product)
+    Mt = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * _rows(scales, ids)[:, :, None]
+    n0 = (fx / tz)[:, None] * (Mt[:, :, 0] - jx[:, None] * Mt[:, :, 2])
+    n1 = (fy / tz)[:, None] * (Mt[:, :, 1] - jy[:, None] * Mt[:, :, 2])
+    p00, p11 = np.einsum("ij,ij->i", n0, n0), np.einsum("ij,ij->i", n1, n1)
+    s00, s11, s01 = p00 + EPS2D, p11 + EPS2D, np.einsum("ij,ij->i", n0, n1)
+    cross = np.cross(n0, n1)
+    det = EPS2D * EPS2D + EPS2D * (p00 + p11) + np.einsum("ij,ij->i", cross, cross)
+    chol = np.stack([np.sqrt(s11 / det), -s01 / np.sqrt(det * s11), 1.0 / np.sqrt(s11)], -1)
+    radii = np.stack([np.ceil(extent * np.sqrt(s00)), np.ceil(extent * np.sqrt(s11))], -1)
+    ok = (det > 0) & ((radii[:, 0] > 0) | (radii[:, 1] > 0)) & on_screen(mean2d, radii)
+    return Projected(ids[ok], mean2d[ok], chol[ok], tz[ok], radii[ok])

@@ -1,0 +1,120 @@
+"""Renderer timings for ``trioman bench render``: the numpy runtime renderer against the torch
+rasterizer's forward pass and the brute-force test oracle, measured side by side on one avatar in one
+run, plus the cost of Gaussians the view does not need (off screen, behind the camera)."""
+
+from __future__ import annotations
+
+import time
+import tracemalloc
+
+import numpy as np
+import torch
+
+from trioman.runtime.render import rasterize as rasterize_numpy
+from trioman.toolkit.bench_raster import _oracle
+from trioman.toolkit.render import rasterize as rasterize_torch
+
+KEYS = ("means", "quats", "scales", "opacities", "colors")
+
+
+def avatar_scene(avatar_run: str | None = None) -> dict:
+    """Gaussians (float32 numpy) of an avatar at its first test frame's pose, with that frame's camera
+    (K for a square image of side 2 cx, rescaled per size later). ``avatar_run``: a trained run folder;
+    None: the untrained default avatar of the default synthetic subject."""
+    if avatar_run is not None:
+        from trioman.toolkit.evaluate import load_run
+
+        model, subject, _, _ = load_run(avatar_run)
+        i = int(subject.indices("test")[0])
+        pose, trans = np.array(subject.poses[i]), np.array(subject.trans[i])
+        viewmat, K = np.array(subject.viewmat[i]), np.array(subject.K[i])
+        source = f"trained run {avatar_run}, test frame {i}"
+    else:
+        from trioman.toolkit.avatar.model import AvatarConfig, GaussianAvatar
+        from trioman.toolkit.synth.subject import SynthConfig, build_body, plan_sequences
+
+        cfg = SynthConfig(seed=0)
+        mesh = build_body(cfg)[0]
+        model = GaussianAvatar(mesh, AvatarConfig())
+        seq = plan_sequences(mesh, cfg)
+        i = seq.split.index("test")
+        pose, trans, viewmat, K = seq.pose[i], seq.trans[i], seq.viewmat[i], seq.K[i]
+        source = f"default avatar (untrained), first test frame ({seq.sequence[i]})"
+    with torch.no_grad():
+        g = model.eval()(torch.from_numpy(np.asarray(pose, np.float32)), torch.from_numpy(np.asarray(trans, np.float32)))
+    scene = {k: getattr(g.refined, k).numpy().astype(np.float32) for k in KEYS}
+    return dict(scene, viewmat=np.asarray(viewmat, np.float32), K=np.asarray(K, np.float64), source=source)
+
+
+def with_unneeded_extras(scene: dict, factor: int = 10, seed: int = 0) -> dict:
+    """The scene plus factor x N Gaussians like the avatar's, half behind the camera, half beside the
+    view (at 1.5 - 3 half-widths off axis), none reaching the image."""
+    rng = np.random.default_rng(seed)
+    n = factor * len(scene["means"])
+    K, vm = scene["K"], scene["viewmat"].astype(np.float64)
+    z = np.concatenate([rng.uniform(-4.0, -0.05, n // 2), rng.uniform(1.0, 6.0, n - n // 2)])
+    half = np.array([K[0, 2] / K[0, 0], K[1, 2] / K[1, 1]])  # tan of the half fields of view
+    xy = rng.uniform(-2.0, 2.0, (n, 2)) * half * np.abs(z)[:, None]
+    side = np.arange(n) >= n // 2
+    xy[side, 0] = rng.choice([-1.0, 1.0], side.sum()) * rng.uniform(1.5, 3.0, side.sum()) * half[0] * z[side]
+    cam = np.concatenate([xy, z[:, None]], 1)
+    world = (cam - vm[:3, 3]) @ vm[:3, :3]  # inverse of the rigid world -> camera map
+    pick = rng.integers(0, len(scene["means"]), n)
+    extra = dict(means=world, quats=scene["quats"][pick], scales=scene["scales"][pick],
+                 opacities=scene["opacities"][pick], colors=scene["colors"][pick])
+    return dict(scene, **{k: np.concatenate([scene[k], extra[k].astype(np.float32)]) for k in KEYS})
+
+
+def _best(fn, repeats: int) -> float:
+    """Seconds of the fastest of ``repeats`` calls (after one warm-up)."""
+    fn()
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def _args(scene: dict, size: int) -> list:
+    K = scene["K"].copy()
+    K[:2] *= size / (2 * K[0, 2])
+    return [scene[k] for k in KEYS] + [scene["viewmat"], K.astype(np.float32), size, size]
+
+
+def bench_renderers(scene: dict, sizes=(256, 512), repeats: int = 7, oracle_size: int = 128) -> dict:
+    """Times (s), frames per second, numpy-vs-torch differences and memory for each image size."""
+    bg = np.ones(3, dtype=np.float32)
+    extras = with_unneeded_extras(scene)
+    rows = []
+    for size in sizes:
+        row = {"size": size, "gaussians": len(scene["means"])}
+        for name, sc in (("", scene), ("extra_", extras)):
+            a = _args(sc, size)
+            ta = [torch.from_numpy(np.asarray(x)) if isinstance(x, np.ndarray) else x for x in a]
+            row[f"{name}numpy_s"] = _best(lambda: rasterize_numpy(*a, background=bg), repeats)
+            with torch.no_grad():
+                row[f"{name}torch_s"] = _best(lambda: rasterize_torch(*ta, background=torch.from_numpy(bg)), repeats)
+        a = _args(scene, size)
+        out = rasterize_numpy(*a, background=bg)
+        with torch.no_grad():
+            ref = rasterize_torch(*(torch.from_numpy(np.asarray(x)) if isinstance(x, np.ndarray) else x for x in a),
+                                  background=torch.from_numpy(bg))
+        for key, x, y in zip(("rgb", "alpha", "depth"), out, ref):
+            row[f"max_abs_diff_{key}"] = float(np.abs(x - y.numpy()).max())
+        row["coverage"] = float((out.alpha > 0.5).mean())
+        for name, sc in (("", scene), ("extra_", extras)):
+            tracemalloc.start()
+            rasterize_numpy(*_args(sc, size), background=bg)
+            row[f"{name}numpy_tracemalloc_peak_mib"] = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+        rows.append(row)
+    report = {"source": scene["source"], "rows": rows}
+    oracle = _oracle()
+    if oracle is not None:  # one call: seconds per frame at a small size, numpy timed at the same size
+        a = _args(scene, oracle_size)
+        t = time.perf_counter()
+        oracle(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)
+        report["oracle"] = {"size": oracle_size, "oracle_s": time.perf_counter() - t,
+                            "numpy_s": _best(lambda: rasterize_numpy(*a, background=bg), repeats)}
+    return report
