@@ -58,7 +58,11 @@ def clip_points(avatar, motion, samples: int = 12):
     return np.concatenate([avatar.gaussians(motion.pose[i], motion.trans[i], pose_dependent=False).means for i in idx])
 
 
-def run(args: argparse.Namespace) -> int:
+def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, elevation: float = 5.0,
+            size: int = 512, background=(1.0, 1.0, 1.0), fps: float | None = None, frames_dir=None,
+            pose_dependent: bool = True, progress: bool = True) -> dict:
+    """Render ``motion`` (a Motion in the avatar's joint order) with ``avatar`` (runtime Avatar) to an MP4
+    at ``out``; angles in degrees. -> timings: frames, seconds, ms per frame for posing and rendering."""
     import time
     from pathlib import Path
 
@@ -66,38 +70,27 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from trioman.runtime.cameras import frame_points, orbit_viewmat
-    from trioman.runtime.formats import load_avatar
-    from trioman.runtime.formats.motion import motion_from_spec
     from trioman.runtime.image_io import VideoWriter, write_png
     from trioman.runtime.render import rasterize
 
-    size = check_size(args.size)
-    bg = parse_background(args.background)
-    if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--frames: must be >= 1, got {args.frames}")
-    fps = args.fps
-    if fps is not None and not fps > 0:
-        raise ValueError(f"--fps: must be > 0, got {fps}")
-    out = Path(args.out)
+    if camera not in ("fixed", "orbit"):
+        raise ValueError(f"camera: expected 'fixed' or 'orbit', got {camera!r}")
+    size = check_size(size)
+    bg = np.asarray(background, dtype=np.float32)
+    out = Path(out)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"--out: the folder {out.parent} does not exist")
-    frames_dir = Path(args.frames_dir) if args.frames_dir else None
     if frames_dir is not None:
+        frames_dir = Path(frames_dir)
         frames_dir.mkdir(parents=True, exist_ok=True)
-
-    avatar = load_avatar(args.avatar)
-    motion = motion_from_spec(args.motion, avatar.skeleton, args.frames)
-    fps = fps or motion.fps
-    az0, el = np.deg2rad(args.azimuth), np.deg2rad(args.elevation)
+    az0, el = np.deg2rad(azimuth), np.deg2rad(elevation)
     K, viewmat, center = frame_points(clip_points(avatar, motion), (size, size), az0, el)
     distance = float(np.linalg.norm(np.linalg.inv(viewmat)[:3, 3] - center))
-    pose_dependent = not args.no_pose_dependent
-
     t_pose = t_render = 0.0
     start = time.perf_counter()
-    with VideoWriter(out, fps, (size, size)) as video:
-        for i in tqdm(range(motion.num_frames), desc="animate", unit="frame", disable=args.quiet):
-            if args.camera == "orbit":
+    with VideoWriter(out, fps or motion.fps, (size, size)) as video:
+        for i in tqdm(range(motion.num_frames), desc="animate", unit="frame", disable=not progress):
+            if camera == "orbit":
                 viewmat = orbit_viewmat(center, az0 + 2 * np.pi * i / motion.num_frames, el, distance)
             t0 = time.perf_counter()
             g = avatar.gaussians(motion.pose[i], motion.trans[i], pose_dependent=pose_dependent)
@@ -108,10 +101,28 @@ def run(args: argparse.Namespace) -> int:
             video.write(img)
             if frames_dir is not None:
                 write_png(frames_dir / f"{i:05d}.png", img)
-    total = time.perf_counter() - start
     n = motion.num_frames
-    print(f"animate: {n} frames of {motion.name!r} ({avatar.num_gaussians} Gaussians, {size}x{size}) in {total:.1f} s: "
-          f"{1000 * total / n:.1f} ms/frame (pose {1000 * t_pose / n:.1f}, render {1000 * t_render / n:.1f}), "
-          f"{n / total:.1f} fps")
-    print(f"animate: video {out}" + (f"; frames {frames_dir}" if frames_dir else ""))
+    total = time.perf_counter() - start
+    return {"frames": n, "seconds": total, "pose_ms": 1000 * t_pose / n, "render_ms": 1000 * t_render / n,
+            "ms_per_frame": 1000 * total / n, "size": size, "gaussians": avatar.num_gaussians, "video": str(out)}
+
+
+def run(args: argparse.Namespace) -> int:
+    from trioman.runtime.formats import load_avatar
+    from trioman.runtime.formats.motion import motion_from_spec
+
+    bg = parse_background(args.background)
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames: must be >= 1, got {args.frames}")
+    if args.fps is not None and not args.fps > 0:
+        raise ValueError(f"--fps: must be > 0, got {args.fps}")
+    check_size(args.size)
+    avatar = load_avatar(args.avatar)
+    motion = motion_from_spec(args.motion, avatar.skeleton, args.frames)
+    r = animate(avatar, motion, args.out, args.camera, args.azimuth, args.elevation, args.size, bg, args.fps,
+                args.frames_dir, not args.no_pose_dependent, not args.quiet)
+    print(f"animate: {r['frames']} frames of {motion.name!r} ({r['gaussians']} Gaussians, {r['size']}x{r['size']}) "
+          f"in {r['seconds']:.1f} s: {r['ms_per_frame']:.1f} ms/frame (pose {r['pose_ms']:.1f}, render "
+          f"{r['render_ms']:.1f}), {1000 / r['ms_per_frame']:.1f} fps")
+    print(f"animate: video {r['video']}" + (f"; frames {args.frames_dir}" if args.frames_dir else ""))
     return 0

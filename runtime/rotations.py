@@ -38,7 +38,12 @@ def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Rotation matrix -> unit quaternion wxyz with w >= 0 (Shepperd's method). [..., 3, 3] -> [..., 4]."""
+    """Rotation matrix -> unit quaternion wxyz with w >= 0 (Shepperd's method). [..., 3, 3] -> [..., 4].
+
+    A near-rotation (e.g. a blend of rotations in LBS) gives the same quaternion as
+    trioman.toolkit.rotations.matrix_to_quat: the same candidate, normalised with its norm clamped
+    at 1e-12 (an all-zero candidate stays zero, which means the identity).
+    """
     R = np.asarray(R, dtype=np.float64)
     m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
     # Four candidate solutions; take the numerically largest denominator per element.
@@ -54,7 +59,7 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     diag = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
     best = np.argmax(diag, axis=-1)
     q = np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-12)
     return np.where(q[..., :1] < 0, -q, q)
 
 

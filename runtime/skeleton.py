@@ -33,6 +33,27 @@ def _shape(name: str, a: np.ndarray, expected: tuple) -> None:
         raise ValueError(f"{name}: expected shape {want}, got {list(a.shape)}")
 
 
+def blend_transforms(A: np.ndarray, skin_indices: np.ndarray, skin_weights: np.ndarray) -> np.ndarray:
+    """Sparse linear blend of skinning transforms: the one LBS of the runtime.
+
+    A: [..., J, 4, 4] (skinning transforms), skin_indices / skin_weights: [N, K] -> [..., N, 3, 4]
+    float64, ``sum_k skin_weights[n, k] * A[skin_indices[n, k], :3, :]``. Memory stays ~N * 12 floats
+    per leading index (the K influences are accumulated one at a time).
+    """
+    A = np.asarray(A, dtype=np.float64)
+    idx = np.asarray(skin_indices)
+    w = np.asarray(skin_weights, dtype=np.float64)
+    out = np.zeros(A.shape[:-3] + (idx.shape[0], 3, 4))
+    for k in range(idx.shape[1]):
+        out += w[:, k, None, None] * A[..., idx[:, k], :3, :]
+    return out
+
+
+def apply_transforms(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Per-point 3x4 transforms applied to points. T: [..., N, 3, 4], points: [N, 3] -> [..., N, 3]."""
+    return np.einsum("...nab,nb->...na", T[..., :3], points) + T[..., 3]
+
+
 @dataclass(frozen=True, eq=False)
 class Skeleton:
     """A kinematic tree. Joints are ordered so that parents[j] < j and parents[0] == -1."""
@@ -182,11 +203,9 @@ class SkinnedMesh:
         A = self.skeleton.skinning_transforms(pose, trans)  # [..., J, 4, 4]
         lead = A.shape[:-3]
         A = A.reshape((-1,) + A.shape[-3:])
-        W = self.dense_weights()
         out = np.empty((len(A), self.num_vertices, 3))
         for s in range(0, len(A), chunk):
-            blend = np.einsum("vj,bjak->bvak", W, A[s : s + chunk, :, :3, :])  # [b, V, 3, 4]
-            out[s : s + chunk] = np.einsum("bvak,vk->bva", blend[..., :3], self.vertices) + blend[..., 3]
+            out[s : s + chunk] = apply_transforms(blend_transforms(A[s : s + chunk], self.skin_indices, self.skin_weights), self.vertices)
         return out.reshape(lead + (self.num_vertices, 3))
 
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint
 
+from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.render.projection import project_gaussians
 
@@ -62,10 +63,10 @@ def _time(fn, repeats: int) -> float:
     return (time.perf_counter() - t) / repeats
 
 
+@flush_denormals()
 def bench_rasterizer(gaussians, viewmat: torch.Tensor, K: torch.Tensor, sizes=(128, 256), repeats: int = 5,
                      oracle_max_pixels: int = 128 * 128) -> list[dict]:
     """Seconds per forward and forward+backward for each image size and implementation."""
-    torch.set_flush_denormal(True)
     oracle = _oracle()
     rows = []
     for size in sizes:

@@ -17,6 +17,7 @@ from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.image_io import atomic_write_text, write_png, write_video
 from trioman.runtime.preview import contact_sheet
 from trioman.toolkit.avatar.model import GaussianAvatar
+from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.metrics import METRIC_KEYS, evaluate_pair
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint
 from trioman.toolkit.train.config import TrainConfig
@@ -60,10 +61,10 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
     return bgr[..., ::-1].astype(np.float32) / 255
 
 
+@flush_denormals()
 def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
              progress: bool = True, grid_frames: int = 6, video: bool = True) -> dict:
     """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary."""
-    torch.set_flush_denormal(True)  # see train(): subnormals are slow on CPU
     model, subject, cfg, step = load_run(run)
     out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)

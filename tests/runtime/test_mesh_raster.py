@@ -46,6 +46,10 @@ def ref_raster(xy, z, faces, width, height, perspective=True, cull=False):
             w = [s * _edge(p1, p2, px, py), s * _edge(p2, p0, px, py), s * _edge(p0, p1, px, py)]
             wsum = w[0] + w[1] + w[2]
             inside = (w[0] >= 0) & (w[1] >= 0) & (w[2] >= 0) & (wsum > 0)
+            # within the triangle's bounding box: for slivers thinner than float64 can resolve, the
+            # edge functions round to 0 all along the sliver's line, far beyond its corners
+            lo, hi = xy[tri].min(0), xy[tri].max(0)
+            inside &= (px >= lo[0]) & (px <= hi[0]) & (py >= lo[1]) & (py <= hi[1])
             b = [wk / wsum for wk in w]
             c = 1.0 / zz if perspective else zz
             d = c[0] + b[1] * (c[1] - c[0]) + b[2] * (c[2] - c[0])

@@ -15,6 +15,7 @@ from trioman import __version__
 from trioman.runtime.formats import load_subject
 from trioman.runtime.image_io import atomic_write_text
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
+from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.metrics import psnr, ssim
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
@@ -84,6 +85,7 @@ def _trim_log(log: Path, step: int) -> None:
     atomic_write_text(log, "".join(kept))
 
 
+@flush_denormals()
 def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: bool = False, progress: bool = True,
           stop_after: int | None = None, lpips=None, on_checkpoint: Callable[[int, Path], None] | None = None) -> Path:
     """Train an avatar on the subject's training frames into the folder ``run``.
@@ -92,7 +94,6 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     ``on_checkpoint(step, path)`` is called after each checkpoint (benchmarks evaluate there).
     """
     run, subject_path = Path(run), Path(subject_path)
-    torch.set_flush_denormal(True)  # subnormal floats in the MLPs cost up to 10x on CPU
     if not resume and (run / "config.json").exists():
         raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
     subject = load_subject(subject_path)

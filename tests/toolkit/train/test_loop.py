@@ -89,3 +89,11 @@ def test_presets_and_bad_values():
         TrainConfig(iterations=0)
     with pytest.raises(ValueError, match="image_scale"):
         TrainConfig(image_scale=2.0)
+
+
+def test_training_leaves_the_subnormal_setting_as_it_found_it(subject, tmp_path):
+    from trioman.toolkit.cpu import denormals_flushed
+
+    assert not denormals_flushed()
+    train(subject, tmp_path / "d", TrainConfig(iterations=1, checkpoint_every=1, avatar=TINY_AVATAR), progress=False)
+    assert not denormals_flushed()

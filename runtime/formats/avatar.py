@@ -1,0 +1,356 @@
+"""The avatar format (version 1) is a folder; docs/formats.md documents it in full.
+
+    avatar.json            metadata: format, version, body model, counts, options, source, files + sha256
+    gaussians.npz          baked pose-independent attributes (pre-activation) + sparse skinning
+    skeleton.npz           joint_names, parents, joints (rest)
+    pose_dependent.onnx    pose [J,3] -> d_offset [N,3], d_log_scale [N,S], d_rgb [N,3] (optional)
+    canonical.ply          the avatar at the rest pose, standard 3DGS .ply (for splat viewers)
+    posed_<name>.ply       optional extra posed .ply files
+
+``load_avatar`` validates everything (and every file's sha256) and raises ``FormatError`` naming the
+file and the field; ``save_avatar`` writes a temporary sibling folder and renames it into place.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from trioman.runtime.avatar import SCALE_CLAMP, Avatar
+from trioman.runtime.formats.common import (
+    FormatError,
+    _fail,
+    _fsynced_write,
+    _is_int,
+    _load_json,
+    _load_npz,
+    _move_into_place,
+    _plain_json,
+    _write_npz,
+)
+from trioman.runtime.image_io import fsync_dir, temp_sibling
+from trioman.runtime.skeleton import Skeleton
+
+AVATAR_FORMAT = "trioman-avatar"
+AVATAR_VERSION = 1
+
+AVATAR_JSON = "avatar.json"
+GAUSSIANS_NPZ = "gaussians.npz"
+SKELETON_NPZ = "skeleton.npz"
+POSE_ONNX = "pose_dependent.onnx"
+CANONICAL_PLY = "canonical.ply"
+ONNX_INPUT = "pose"
+ONNX_OUTPUTS = ("d_offset", "d_log_scale", "d_rgb")
+WEIGHT_SUM_TOL = 1e-4
+
+_FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_quats", "skin_weights")
+_EXTRA_PLY = re.compile(r"^posed_[A-Za-z0-9_.\-]{1,100}\.ply$")
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------------------------------
+# validation (shared by load and save; ``where`` is the file path or "save_avatar")
+
+
+def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
+    if not isinstance(meta, dict):
+        raise _fail(where, None, f"expected a JSON object, got {type(meta).__name__}")
+    fmt = meta.get("format")
+    if fmt != AVATAR_FORMAT:
+        raise _fail(where, "format", f"expected {AVATAR_FORMAT!r}, got {fmt!r}: not a TrioMan avatar")
+    version = meta.get("version")
+    if not _is_int(version):
+        raise _fail(where, "version", f"expected an integer, got {version!r}")
+    if version != AVATAR_VERSION:
+        raise _fail(where, "version", f"unknown version {version} (this trioman reads version {AVATAR_VERSION})")
+
+    def get(field: str) -> Any:
+        if field not in meta:
+            raise _fail(where, field, "missing field")
+        return meta[field]
+
+    body_model = get("body_model")
+    if not isinstance(body_model, str) or not body_model:
+        raise _fail(where, "body_model", f"expected a non-empty string, got {body_model!r}")
+    if get("units") != "m":
+        raise _fail(where, "units", f"expected 'm' (metres), got {meta['units']!r}")
+    n = get("num_gaussians")
+    if not _is_int(n) or n <= 0:
+        raise _fail(where, "num_gaussians", f"expected a positive integer, got {n!r}")
+    for field in ("anisotropic", "pose_dependent"):
+        if not isinstance(get(field), bool):
+            raise _fail(where, field, f"expected true or false, got {meta[field]!r}")
+    clamp = get("scale_clamp")
+    if clamp != list(SCALE_CLAMP):
+        raise _fail(where, "scale_clamp", f"expected {list(SCALE_CLAMP)} (log-scale clamp), got {clamp!r}")
+    joints = get("pose_joints")
+    if not (isinstance(joints, list) and all(isinstance(j, str) and j for j in joints)):
+        raise _fail(where, "pose_joints", f"expected a list of joint names, got {joints!r}")
+    if meta["pose_dependent"] and not joints:
+        raise _fail(where, "pose_joints", "empty, but pose_dependent is true")
+    if not isinstance(get("trioman_version"), str):
+        raise _fail(where, "trioman_version", f"expected a string, got {meta['trioman_version']!r}")
+    if not isinstance(get("source"), dict):
+        raise _fail(where, "source", f"expected an object, got {type(meta['source']).__name__}")
+    files = get("files")
+    if not isinstance(files, dict):
+        raise _fail(where, "files", f"expected an object of file name -> {{sha256, bytes}}, got {type(files).__name__}")
+    required = [GAUSSIANS_NPZ, SKELETON_NPZ, CANONICAL_PLY] + ([POSE_ONNX] if meta["pose_dependent"] else [])
+    for name in required:
+        if name not in files:
+            raise _fail(where, f"files.{name}", "missing entry")
+    allowed = set(required)
+    for name, entry in files.items():
+        if name not in allowed and not _EXTRA_PLY.match(name):
+            raise _fail(where, f"files.{name}", f"unexpected file name (allowed: {sorted(allowed)} and posed_<name>.ply)")
+        if not (isinstance(entry, dict) and isinstance(entry.get("sha256"), str) and re.fullmatch(r"[0-9a-f]{64}", entry["sha256"])
+                and _is_int(entry.get("bytes")) and entry["bytes"] >= 0):
+            raise _fail(where, f"files.{name}", f"expected {{'sha256': 64 hex digits, 'bytes': size}}, got {entry!r}")
+    return meta
+
+
+def _check_skeleton(arrays: Mapping[str, np.ndarray], where: Any) -> Skeleton:
+    for key in ("joint_names", "parents", "joints"):
+        if key not in arrays:
+            raise _fail(where, key, f"missing array (has: {sorted(arrays)})")
+    names = np.asarray(arrays["joint_names"])
+    if names.ndim != 1 or names.dtype.kind != "U":
+        raise _fail(where, "joint_names", f"expected a 1-D unicode array, got dtype {names.dtype} shape {list(names.shape)}")
+    try:
+        return Skeleton(tuple(names.tolist()), np.asarray(arrays["parents"]), np.asarray(arrays["joints"]))
+    except ValueError as err:
+        raise FormatError(f"{where}: {err}") from None
+
+
+def _check_gaussians(arrays: Mapping[str, np.ndarray], where: Any, N: int, J: int, anisotropic: bool) -> dict[str, np.ndarray]:
+    S = 3 if anisotropic else 1
+    shapes: dict[str, tuple] = {"positions": (N, 3), "log_scales": (N, S), "rgb_logits": (N, 3), "opacities": (N,),
+                                "skin_indices": (N, None), "skin_weights": (N, None)}
+    if anisotropic:
+        shapes["local_quats"] = (N, 4)
+    elif "local_quats" in arrays:
+        raise _fail(where, "local_quats", "present, but avatar.json says the avatar is isotropic (anisotropic: false)")
+    out: dict[str, np.ndarray] = {}
+    for key, want in shapes.items():
+        if key not in arrays:
+            raise _fail(where, key, f"missing array (has: {sorted(arrays)})")
+        a = np.asarray(arrays[key])
+        kinds = "iu" if key == "skin_indices" else "fiu"
+        if a.dtype.kind not in kinds:
+            raise _fail(where, key, f"expected {'integers' if key == 'skin_indices' else 'floats'}, got dtype {a.dtype}")
+        if a.ndim != len(want) or any(w is not None and s != w for s, w in zip(a.shape, want)):
+            if a.ndim >= 1 and a.shape[0] != N and a.ndim == len(want):
+                raise _fail(where, key, f"{a.shape[0]} Gaussians, but avatar.json num_gaussians is {N}")
+            shown = "[" + ", ".join("K" if w is None else str(w) for w in want) + "]"
+            raise _fail(where, key, f"expected shape {shown}, got {list(a.shape)}")
+        if key in _FLOAT_FIELDS:
+            a = a.astype(np.float32)
+            bad = ~np.isfinite(a)
+            if bad.any():
+                first = int(np.flatnonzero(bad.reshape(N, -1).any(axis=1))[0])
+                raise _fail(where, key, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), first at Gaussian {first}")
+        out[key] = a
+    idx, w = out["skin_indices"], out["skin_weights"]
+    if idx.shape != w.shape:
+        raise _fail(where, "skin_weights", f"shape {list(w.shape)} differs from skin_indices {list(idx.shape)}")
+    if idx.shape[1] == 0:
+        raise _fail(where, "skin_indices", "no influences (K = 0)")
+    if idx.min() < 0 or idx.max() >= J:
+        raise _fail(where, "skin_indices", f"joint indices must lie in [0, {J}) (skeleton.npz has {J} joints), got [{idx.min()}, {idx.max()}]")
+    out["skin_indices"] = idx.astype(np.int32)
+    if np.any(w < 0):
+        raise _fail(where, "skin_weights", f"{int((w < 0).sum())} negative weight(s)")
+    sums = w.sum(axis=1, dtype=np.float64)
+    if np.any(np.abs(sums - 1.0) > WEIGHT_SUM_TOL):
+        worst = int(np.argmax(np.abs(sums - 1.0)))
+        raise _fail(where, "skin_weights", f"rows must sum to 1, Gaussian {worst} sums to {sums[worst]:.6f}")
+    o = out["opacities"]
+    if np.any((o < 0) | (o > 1)):
+        raise _fail(where, "opacities", f"values must lie in [0, 1], got [{o.min()}, {o.max()}]")
+    return out
+
+
+def _open_onnx(model: Path | bytes, where: Any, J: int, N: int, S: int) -> Any:
+    """An onnxruntime session (CPU) of the pose-dependent graph, its inputs/outputs checked and run once."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3
+    try:
+        src = str(model) if isinstance(model, Path) else model
+        session = ort.InferenceSession(src, sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as err:
+        raise _fail(where, None, f"not a loadable ONNX model ({type(err).__name__}: {str(err).splitlines()[0][:300]})") from None
+    inputs = session.get_inputs()
+    if [i.name for i in inputs] != [ONNX_INPUT]:
+        raise _fail(where, "inputs", f"expected one input {ONNX_INPUT!r}, got {[i.name for i in inputs]}")
+    if inputs[0].type != "tensor(float)" or list(inputs[0].shape) != [J, 3]:
+        raise _fail(where, ONNX_INPUT, f"expected float32 [{J}, 3], got {inputs[0].type} {inputs[0].shape}")
+    names = [o.name for o in session.get_outputs()]
+    if sorted(names) != sorted(ONNX_OUTPUTS):
+        raise _fail(where, "outputs", f"expected {list(ONNX_OUTPUTS)}, got {names}")
+    try:
+        outs = session.run(list(ONNX_OUTPUTS), {ONNX_INPUT: np.zeros((J, 3), np.float32)})
+    except Exception as err:
+        raise _fail(where, None, f"the graph fails to run ({type(err).__name__}: {str(err).splitlines()[0][:300]})") from None
+    for name, out, cols in zip(ONNX_OUTPUTS, outs, (3, S, 3)):
+        if out.shape != (N, cols) or out.dtype != np.float32:
+            raise _fail(where, name, f"expected float32 [{N}, {cols}], got {out.dtype} {list(out.shape)}")
+        if not np.all(np.isfinite(out)):
+            raise _fail(where, name, "non-finite value(s) (NaN/Inf) at the zero pose")
+    return session
+
+
+# --------------------------------------------------------------------------------------------------
+# load
+
+
+def load_avatar(path: str | os.PathLike) -> Avatar:
+    """Load and validate an avatar folder (see docs/formats.md). Raises FormatError."""
+    root = Path(path)
+    if not root.exists():
+        raise FormatError(f"{root}: avatar folder not found")
+    if not root.is_dir():
+        raise FormatError(f"{root}: not a folder (an avatar is a folder with {AVATAR_JSON}, {GAUSSIANS_NPZ}, "
+                          f"{SKELETON_NPZ}, {CANONICAL_PLY} and optionally {POSE_ONNX})")
+    meta_path = root / AVATAR_JSON
+    if not meta_path.is_file():
+        raise FormatError(f"{meta_path}: missing file (is this a TrioMan avatar folder?)")
+    meta = _check_meta(_load_json(meta_path), meta_path)
+    for name, entry in meta["files"].items():
+        f = root / name
+        if not f.is_file():
+            raise FormatError(f"{f}: missing file (listed in {AVATAR_JSON})")
+        size = f.stat().st_size
+        if size != entry["bytes"]:
+            raise FormatError(f"{f}: {size} bytes, but {AVATAR_JSON} lists {entry['bytes']} (truncated or modified file)")
+        digest = sha256_file(f)
+        if digest != entry["sha256"]:
+            raise FormatError(f"{f}: sha256 {digest[:12]}... does not match {AVATAR_JSON} ({entry['sha256'][:12]}...): corrupt or modified file")
+    if not meta["pose_dependent"] and (root / POSE_ONNX).exists():
+        raise FormatError(f"{root / POSE_ONNX}: present, but {AVATAR_JSON} pose_dependent is false")
+
+    sk_path = root / SKELETON_NPZ
+    skeleton = _check_skeleton(_load_npz(sk_path), sk_path)
+    _check_pose_joints(meta["pose_joints"], skeleton, meta_path)
+    g_path = root / GAUSSIANS_NPZ
+    arrays = _check_gaussians(_load_npz(g_path), g_path, meta["num_gaussians"], skeleton.num_joints, meta["anisotropic"])
+    session = None
+    if meta["pose_dependent"]:
+        session = _open_onnx(root / POSE_ONNX, root / POSE_ONNX, skeleton.num_joints, meta["num_gaussians"],
+                             3 if meta["anisotropic"] else 1)
+    return Avatar(skeleton, arrays, meta, session, root)
+
+
+def _check_pose_joints(names: Sequence[str], skeleton: Skeleton, where: Any) -> None:
+    unknown = [n for n in names if n not in skeleton.joint_names]
+    if unknown:
+        raise _fail(where, "pose_joints", f"unknown joint name(s) {unknown[:5]} (the skeleton has {skeleton.num_joints} joints)")
+    if len(set(names)) != len(names):
+        raise _fail(where, "pose_joints", "duplicate joint names")
+
+
+# --------------------------------------------------------------------------------------------------
+# save
+
+
+def save_avatar(
+    path: str | os.PathLike,
+    *,
+    skeleton: Skeleton,
+    gaussians: Mapping[str, np.ndarray],  # the gaussians.npz arrays (see docs/formats.md)
+    body_model: str,
+    pose_joints: Sequence[str] = (),
+    pose_dependent_onnx: bytes | None = None,  # serialized ONNX model, None = no pose-dependent terms
+    source: Mapping[str, Any] | None = None,
+    posed: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,  # name -> (pose [J,3], trans [3]): posed_<name>.ply
+    overwrite: bool = False,
+) -> Avatar:
+    """Validate and write an avatar folder at ``path``; returns it loaded back (``load_avatar``).
+
+    Everything is written into a temporary sibling folder renamed onto ``path`` at the end: an error
+    leaves nothing at ``path``. An existing non-empty folder is replaced only with ``overwrite=True``.
+    canonical.ply holds the avatar at the zero pose with zero translation (pose-dependent terms included).
+    """
+    from trioman import __version__
+    from trioman.runtime.ply import write_ply
+
+    where = "save_avatar"
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise FileExistsError(f"{target}: exists and is not a folder")
+    if target.is_dir() and any(target.iterdir()) and not overwrite:
+        raise FileExistsError(f"{target}: folder exists and is not empty (pass overwrite=True / --overwrite to replace it)")
+    if not isinstance(skeleton, Skeleton):
+        raise FormatError(f"{where}: skeleton: expected a Skeleton, got {type(skeleton).__name__}")
+    positions = np.asarray(gaussians.get("positions", np.zeros((0, 3))))
+    N = int(positions.shape[0]) if positions.ndim else 0
+    anisotropic = "local_quats" in gaussians
+    pose_joints = [str(j) for j in pose_joints]
+    meta: dict[str, Any] = {
+        "format": AVATAR_FORMAT,
+        "version": AVATAR_VERSION,
+        "body_model": body_model,
+        "units": "m",
+        "num_gaussians": N,
+        "anisotropic": anisotropic,
+        "pose_dependent": pose_dependent_onnx is not None,
+        "scale_clamp": list(SCALE_CLAMP),
+        "pose_joints": pose_joints,
+        "trioman_version": __version__,
+        "source": _plain_json(dict(source or {}), where, "source"),
+        "files": {},
+    }
+    names = [GAUSSIANS_NPZ, SKELETON_NPZ, CANONICAL_PLY] + ([POSE_ONNX] if pose_dependent_onnx is not None else [])
+    meta["files"] = {n: {"sha256": "0" * 64, "bytes": 0} for n in names}
+    posed = dict(posed or {})
+    for name in posed:
+        meta["files"][f"posed_{name}.ply"] = {"sha256": "0" * 64, "bytes": 0}
+    _check_meta(meta, where)
+    _check_pose_joints(pose_joints, skeleton, where)
+    arrays = _check_gaussians(gaussians, where, N, skeleton.num_joints, anisotropic)
+    unknown = sorted(set(gaussians) - set(arrays))
+    if unknown:
+        raise _fail(where, "gaussians", f"unknown array(s) {unknown}")
+    session = None
+    if pose_dependent_onnx is not None:
+        session = _open_onnx(bytes(pose_dependent_onnx), f"{where}: {POSE_ONNX}", skeleton.num_joints, N, 3 if anisotropic else 1)
+    avatar = Avatar(skeleton, arrays, meta, session)
+
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_sibling(target)
+    os.mkdir(tmp)
+    try:
+        _write_npz(tmp / GAUSSIANS_NPZ, arrays)
+        _write_npz(tmp / SKELETON_NPZ, {"joint_names": np.array(skeleton.joint_names, dtype=np.str_),
+                                        "parents": skeleton.parents, "joints": skeleton.joints})
+        if pose_dependent_onnx is not None:
+            _fsynced_write(tmp / POSE_ONNX, bytes(pose_dependent_onnx))
+        J = skeleton.num_joints
+        write_ply(tmp / CANONICAL_PLY, *avatar.gaussians(np.zeros((J, 3)), np.zeros(3)))
+        for name, (pose, trans) in posed.items():
+            write_ply(tmp / f"posed_{name}.ply", *avatar.gaussians(pose, trans))
+        for name in meta["files"]:
+            meta["files"][name] = {"sha256": sha256_file(tmp / name), "bytes": (tmp / name).stat().st_size}
+        _fsynced_write(tmp / AVATAR_JSON, (json.dumps(meta, indent=2, allow_nan=False) + "\n").encode("utf-8"))
+        fsync_dir(tmp)
+        _move_into_place(tmp, target, overwrite)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    fsync_dir(target.parent)
+    return load_avatar(target)
