@@ -7,7 +7,8 @@ a triplet file (toolkit/triplets.py). Baselines of training subjects are trained
 ``subset_stride``-th frame, so most coarse frames carry real novel-pose error). Held-out subjects'
 baselines see their train split only, and evaluation uses their test frames (novel poses and views).
 
-Layout: DIR/corpus.json, DIR/subjects/sNN/, DIR/runs/<baseline_frames>/sNN/, DIR/triplets/<baseline_frames>/sNN.npz.
+Layout: DIR/corpus.json, DIR/subjects/sNN/, DIR/runs/<variant>/sNN/, DIR/triplets/<variant>/sNN.npz with
+variant = baseline_frames ("all" or "subset") for training subjects and "heldout" for held-out ones.
 Every piece is written atomically and skipped when already complete, so an interrupted build resumes.
 """
 
@@ -60,7 +61,7 @@ def triplet_paths(root: str | Path, baseline_frames: str = "all") -> dict[str, l
     meta = json.loads((root / CORPUS_JSON).read_text())
     out: dict[str, list[Path]] = {"train": [], "heldout": []}
     for s in meta["subjects"]:
-        p = root / "triplets" / baseline_frames / f"{s['name']}.npz"
+        p = root / "triplets" / (baseline_frames if s["role"] == "train" else "heldout") / f"{s['name']}.npz"
         if not p.is_file():
             raise FileNotFoundError(f"{p}: missing triplet file (build the corpus with --baseline-frames {baseline_frames})")
         out[s["role"]].append(p)
@@ -76,21 +77,23 @@ def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True) -> 
 
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    for sub in ("subjects", f"runs/{cfg.baseline_frames}", f"triplets/{cfg.baseline_frames}"):
-        (root / sub).mkdir(parents=True, exist_ok=True)
+    for variant in (cfg.baseline_frames, "heldout"):
+        for sub in ("runs", "triplets"):
+            (root / sub / variant).mkdir(parents=True, exist_ok=True)
     subjects = []
     for i, (name, role) in enumerate(cfg.names):
         subject = root / "subjects" / name
         if not (subject / "subject.json").is_file():
             synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames), subject, progress=progress)
-        run = root / "runs" / cfg.baseline_frames / name
+        variant = cfg.baseline_frames if role == "train" else "heldout"
+        run = root / "runs" / variant / name
         if not _finished(run, cfg.iterations):
             frames = {"frames": "all"} if role == "train" else {}
             if role == "train" and cfg.baseline_frames == "subset":
                 frames["frame_stride"] = cfg.subset_stride
             train_cfg = preset("quick", iterations=cfg.iterations, checkpoint_every=cfg.iterations, **frames)
             train(subject, run, train_cfg, resume=(run / "config.json").exists(), progress=progress)
-        trip = root / "triplets" / cfg.baseline_frames / f"{name}.npz"
+        trip = root / "triplets" / variant / f"{name}.npz"
         if not trip.is_file():
             build_triplets(run, trip, progress=progress)
         subjects.append({"name": name, "role": role, "seed": cfg.seed + i})

@@ -12,8 +12,9 @@ the near plane) stay accurate:
   a = sqrt(Sigma11 / det), b = -Sigma01 / sqrt(det Sigma11), c = 1 / sqrt(Sigma11).
 
 Culling is cheap first: the centre's depth and the opacity, then a conservative screen bound from
-the largest scale (:func:`_bound_radii`), and only the survivors get covariances. The cost therefore
-follows what the view needs, not N.
+the largest scale (:func:`_bound_radii`), and only the survivors get covariances (isotropic ones
+without their quaternion: Sigma = s^2 I for any rotation). The cost therefore follows what the view
+needs, not N.
 """
 
 from __future__ import annotations
@@ -171,9 +172,17 @@ def project(
     sel = np.flatnonzero(on_screen(mean2d, _bound_radii(smax, tz, jx, jy, fx, fy, np.linalg.norm(Rv, 2), extent)))
     ids, tz, jx, jy, mean2d, extent = ids[sel], tz[sel], jx[sel], jy[sel], mean2d[sel], extent[sel]
     # 3. covariances of the survivors; rows of N = J M: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]]
-    R = quat_to_matrix(_rows(quats, ids))
-    # M = R_view R S, stored transposed: Mt[:, k] = s_k R_view R[:, :, k] (one matrix product)
-    Mt = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * _rows(scales, ids)[:, :, None]
+    # M = R_view R S, stored transposed: Mt[:, k] = s_k R_view R[:, :, k] (one matrix product).
+    # Isotropic Gaussians (s_0 = s_1 = s_2 = s) have Sigma = s^2 I whatever R: M = s R_view, exactly
+    # the same N N^T, so their quaternions are never converted.
+    sc = _rows(scales, ids)
+    Mt = np.empty((len(ids), 3, 3))
+    iso = (sc[:, 0] == sc[:, 1]) & (sc[:, 1] == sc[:, 2])
+    Mt[iso] = sc[iso, 0, None, None] * Rv.T
+    aniso = np.flatnonzero(~iso)
+    if len(aniso):
+        R = quat_to_matrix(_rows(quats, ids[aniso]))
+        Mt[aniso] = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * sc[aniso, :, None]
     n0 = (fx / tz)[:, None] * (Mt[:, :, 0] - jx[:, None] * Mt[:, :, 2])
     n1 = (fy / tz)[:, None] * (Mt[:, :, 1] - jy[:, None] * Mt[:, :, 2])
     p00, p11 = np.einsum("ij,ij->i", n0, n0), np.einsum("ij,ij->i", n1, n1)

@@ -60,18 +60,19 @@ class RenderOutput(NamedTuple):
     depth: np.ndarray  # [H, W] float32, sum of w_i z_i (not normalised)
 
 
-def _gaussian_table(p, opacities, colors) -> np.ndarray:
-    """Per projected Gaussian (float64): mean2d x, y, Cholesky a, b, c scaled by sqrt(1/2), log o, rgb,
-    z. -> [M + 1, 10]; row M is a padding Gaussian that is transparent everywhere."""
+def _gaussian_table(p, opacities, colors) -> tuple[np.ndarray, np.ndarray]:
+    """Per projected Gaussian: float64 [M + 1, 5] mean2d x, y, Cholesky a, b, c scaled by sqrt(1/2),
+    and float32 [M + 1, 5] log o, rgb, z; row M is a padding Gaussian that is transparent everywhere."""
     m = len(p.ids)
-    gq = np.zeros((m + 1, 10))
+    gq = np.zeros((m + 1, 5))
     gq[:m, 0:2] = p.means2d
     gq[:m, 2:5] = p.chol * np.sqrt(0.5)
-    gq[:m, 5] = np.log(opacities[p.ids].astype(np.float64))
-    gq[:m, 6:9] = colors[p.ids]
-    gq[:m, 9] = p.depths
-    gq[m, 5] = _LOG_ZERO
-    return gq
+    gf = np.zeros((m + 1, 5), dtype=_F32)
+    gf[:m, 0] = np.log(opacities[p.ids].astype(np.float64))
+    gf[:m, 1:4] = colors[p.ids]
+    gf[:m, 4] = p.depths
+    gf[m, 0] = _LOG_ZERO
+    return gq, gf
 
 
 def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +84,9 @@ def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([ones, L_col, L_row]).astype(_F32), np.stack([ones, L_row]).astype(_F32)
 
 
-def _block_alpha(Q: np.ndarray, centre: np.ndarray, bases: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """Q [n, 10] (Gaussian-table rows of n pairs), centre [n, 2] pixel coordinates of their tiles'
+def _block_alpha(Q: np.ndarray, logo: np.ndarray, centre: np.ndarray,
+                 bases: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Q [n, 5] (float64 Gaussian-table rows of n pairs), logo [n, 1] float32 log opacities, centre [n, 2] pixel coordinates of their tiles'
     centres -> alpha [n, s^2] = min(0.99, o exp(-sigma)), 0 where skipped (< 1/255).
 
     sigma = u^2 + v^2 in Cholesky form anchored at the tile centre: (u0, v0) = (a dx + b dy, c dy) with
@@ -100,18 +102,18 @@ def _block_alpha(Q: np.ndarray, centre: np.ndarray, bases: tuple[np.ndarray, np.
     G = np.square(coef[:, :3] @ bases[0])  # u^2 [n, s^2]
     v = coef[:, 3:] @ bases[1]
     G += np.square(v, out=v)
-    np.subtract(Q[:, 5, None].astype(_F32), G, out=G)  # log o - sigma
+    np.subtract(logo, G, out=G)  # log o - sigma
     np.exp(G, out=G)
     np.minimum(G, MAX_ALPHA, out=G)
-    G *= G >= _THR_A32  # skip alpha < 1/255
+    G[G < _THR_A32] = 0.0  # skip alpha < 1/255
     return G
 
 
-def _composite(gq, bins, inside, s: int, chunk_elements: int):
+def _composite(gq, gf, bins, inside, s: int, chunk_elements: int):
     """Front-to-back compositing of every tile. gq: :func:`_gaussian_table`; inside [T, s^2] bool
     (pixel within the image). -> color [T, 4, s^2] (sum w c, sum w z) and T_final [T, s^2], float32."""
     tile_start, tile_count = bins.tile_start, bins.tile_count
-    pair_gauss = np.append(bins.pair_gauss, len(gq) - 1)  # pair P: the padding Gaussian
+    pair_gauss = np.append(bins.pair_gauss, len(gq) - 1).astype(np.intp)  # pair P: the padding Gaussian
     n_pairs = len(bins.pair_gauss)
     n_tiles = len(tile_count)
     ty, tx = np.divmod(np.arange(n_tiles), bins.tiles_x)
@@ -135,9 +137,11 @@ def _composite(gq, bins, inside, s: int, chunk_elements: int):
             t = tiles[local]
             k = np.arange(k0, k0 + kb)[:, None]
             gi = np.take(pair_gauss, np.where(k < counts[local], tile_start[t] + k, n_pairs))
-            Q = np.take(gq, gi.reshape(-1), axis=0)  # [kb ta, 10]
+            gi = gi.reshape(-1)
+            Q = np.take(gq, gi, axis=0)  # [kb ta, 5]
+            F = np.take(gf, gi, axis=0)  # [kb ta, 5]
             cen = np.broadcast_to(centres[t], (kb, ta, 2)).reshape(-1, 2)
-            alpha = _block_alpha(Q, cen, bases).reshape(kb, ta, s * s)
+            alpha = _block_alpha(Q, F[:, :1], cen, bases).reshape(kb, ta, s * s)
             live = alive[local]
             P = np.empty((kb + 1, ta, s * s), dtype=_F32)  # T before each Gaussian, then after the last
             np.multiply(T[local], live, out=P[0])
@@ -147,7 +151,7 @@ def _composite(gq, bins, inside, s: int, chunk_elements: int):
             incl = P[1:] > _THR_T32  # not stopped (a prefix of the block)
             w = np.multiply(alpha, P[:-1], out=alpha)
             w *= incl
-            feats = Q[:, 6:10].astype(_F32).reshape(kb, ta, 4)
+            feats = F[:, 1:].reshape(kb, ta, 4)
             acc[local] += np.matmul(feats.transpose(1, 2, 0), w.transpose(1, 0, 2))
             # T where a pixel stopped in this block: P at its number of included Gaussians
             T_new = P[kb].copy()
@@ -198,11 +202,11 @@ def rasterize(
         zeros = np.zeros((height, width), dtype=_F32)
         return RenderOutput(np.broadcast_to(bg, (height, width, 3)).copy(), zeros, zeros.copy())
     s = tile_size
-    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
+    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, p.chol, opacities[p.ids])
     li = np.arange(s)
     ty, tx = np.divmod(np.arange(bins.tiles_x * bins.tiles_y), bins.tiles_x)
     inside = ((ty[:, None, None] * s + li[:, None] < height) & (tx[:, None, None] * s + li < width)).reshape(-1, s * s)
-    color, T_final = _composite(_gaussian_table(p, opacities, colors), bins, inside, s, chunk_elements)
+    color, T_final = _composite(*_gaussian_table(p, opacities, colors), bins, inside, s, chunk_elements)
 
     def to_image(x):  # [T, C, s^2] -> [H, W, C]
         img = x.reshape(bins.tiles_y, bins.tiles_x, x.shape[1], s, s).transpose(0, 3, 1, 4, 2)
