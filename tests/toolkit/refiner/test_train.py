@@ -1,0 +1,91 @@
+"""Refiner loss, batches, training loop and checkpoints."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from tests.toolkit.refiner.helpers import synthetic_batch, tiny_config
+from trioman.toolkit.lpips import LPIPS
+from trioman.toolkit.refiner import (
+    RefinerLossWeights,
+    RefinerTrainConfig,
+    check_batch,
+    create_refiner,
+    load_refiner,
+    refiner_inputs,
+    refiner_loss,
+    refiner_targets,
+    train_refiner,
+)
+from trioman.toolkit.train.checkpoint import latest_checkpoint
+
+
+def test_loss_is_zero_on_targets_and_names_its_terms():
+    g = torch.Generator().manual_seed(0)
+    targets = torch.rand(2, 3, 3, 32, 32, generator=g)
+    total, terms = refiner_loss(targets, targets)
+    assert set(terms) == {"l1", "ssim"} and total.abs() < 1e-6
+    outputs = torch.rand(2, 3, 3, 32, 32, generator=g, requires_grad=True)
+    total, terms = refiner_loss(outputs, targets, lpips=LPIPS(), weights=RefinerLossWeights(l1=1, ssim=0.5, lpips=2))
+    assert set(terms) == {"l1", "ssim", "lpips"}
+    assert torch.allclose(total, terms["l1"] + 0.5 * terms["ssim"] + 2 * terms["lpips"])
+    total.backward()
+    assert torch.isfinite(outputs.grad).all() and outputs.grad.abs().sum() > 0
+
+
+def test_loss_errors_name_the_argument():
+    x = torch.rand(2, 3, 3, 32, 32)
+    with pytest.raises(ValueError, match="outputs"):
+        refiner_loss(x[:, 0], x[:, 0])
+    with pytest.raises(ValueError, match="targets"):
+        refiner_loss(x, x[:, :2])
+    with pytest.raises(ValueError, match="ssim"):
+        RefinerLossWeights(ssim=-1)
+
+
+def test_batch_to_inputs_and_targets():
+    b = synthetic_batch(0, batch=2)
+    assert refiner_inputs(b, "tex") == (b.coarse, b.reference)
+    t = refiner_targets(b, "tex+geo")
+    assert t.shape == (2, 3, 3, 32, 32)
+    assert torch.equal(t[:, 0], b.target) and torch.equal(t[:, 1], b.reference_target) and torch.equal(t[:, 2], b.normal)
+    with pytest.raises(ValueError, match="conditions"):
+        refiner_targets(b, "all")
+    with pytest.raises(ValueError, match="normal: shape"):
+        check_batch(b._replace(normal=b.normal[..., :16]))
+    with pytest.raises(ValueError, match="target: contains NaN"):
+        check_batch(b._replace(target=torch.full_like(b.target, float("nan"))))
+
+
+def test_training_lowers_the_loss():
+    model = create_refiner(tiny_config())
+    result = train_refiner(model, synthetic_batch, RefinerTrainConfig(steps=30, lr=3e-3))
+    first, last = sum(result.losses[:5]) / 5, sum(result.losses[-5:]) / 5
+    assert result.step == 30 and not model.training
+    assert last < 0.9 * first, result.losses
+
+
+def test_checkpoint_round_trip_resume_and_determinism(tmp_path):
+    config = RefinerTrainConfig(steps=3, lr=1e-3, checkpoint_every=2, keep_checkpoints=1)
+    batches = lambda step: synthetic_batch(step, batch=2)  # noqa: E731
+    straight = create_refiner(tiny_config(conditions="tex"), seed=7)
+    reference = train_refiner(straight, batches, config)
+
+    model = create_refiner(tiny_config(conditions="tex"), seed=7)
+    first = train_refiner(model, batches, dataclasses.replace(config, steps=2), run=tmp_path)
+    assert first.checkpoint == latest_checkpoint(tmp_path) and first.step == 2
+    resumed = train_refiner(create_refiner(tiny_config(conditions="tex"), seed=0), batches, config, run=tmp_path)
+    assert resumed.step == 3 and first.losses + resumed.losses == pytest.approx(reference.losses, abs=1e-6)
+
+    state = torch.load(resumed.checkpoint, weights_only=True)
+    assert state["step"] == 3 and state["config"] == tiny_config(conditions="tex").to_dict()
+    loaded = load_refiner(resumed.checkpoint, exportable=True)
+    x = refiner_inputs(synthetic_batch(9, batch=2), "tex")
+    with torch.no_grad():
+        assert torch.allclose(loaded(*x), straight.eval()(*x), atol=1e-5)
+
+    with pytest.raises(ValueError, match="differs"):
+        train_refiner(create_refiner(tiny_config()), batches, config, run=tmp_path)

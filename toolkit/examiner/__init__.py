@@ -1,0 +1,38 @@
+"""The Examiner (paper 3.2.6): a dual-branch attention similarity network on a timm-style ViT,
+its training pairs, loss, training loop, inference choice and AUROC."""
+
+from trioman.toolkit.examiner.inference import Choice, choose
+from trioman.toolkit.examiner.loss import examiner_loss
+from trioman.toolkit.examiner.metrics import auroc
+from trioman.toolkit.examiner.model import (
+    EXAMINER_CONFIGS,
+    Examiner,
+    ExaminerConfig,
+    PatchLogits,
+    create_examiner,
+    examiner_config,
+    export_inputs,
+)
+from trioman.toolkit.examiner.pairs import ExaminerBatch, ExaminerPairs, sample_pairs
+from trioman.toolkit.examiner.train import ExaminerTrainConfig, TrainResult, load_examiner, train_examiner
+
+__all__ = [
+    "EXAMINER_CONFIGS",
+    "Choice",
+    "Examiner",
+    "ExaminerBatch",
+    "ExaminerConfig",
+    "ExaminerPairs",
+    "ExaminerTrainConfig",
+    "PatchLogits",
+    "TrainResult",
+    "auroc",
+    "choose",
+    "create_examiner",
+    "examiner_config",
+    "examiner_loss",
+    "export_inputs",
+    "load_examiner",
+    "sample_pairs",
+    "train_examiner",
+]

@@ -1,0 +1,107 @@
+"""The Refiner (paper 3.2.5): a one-step, Difix-like multi-view latent U-Net trained from scratch.
+
+    z_c = E_t(I_c^T), z_t = E_t(I^{T+k}), z_g = E_g(I_g^T)           latents [B, c, h, w]
+    stack the V views (conditions "none": z_c; "tex": z_c, z_t; "tex+geo": z_c, z_t, z_g) -> [B * V, c, h, w]
+    U-Net once (self-attention over [B, V * h * w, C] tokens, convs and GroupNorm per view)
+    I_c', I_t' = D_t(z_c', z_t'), I_g' = D_g(z_g')                  with skips E_t -> D_t, E_g -> D_g
+    output [B, V, 3, H, W] in (0, 1), views in the order coarse, texture, geometry
+
+Output activation: ``residual=True`` (the default) refines in logit space, out = sigmoid(logit(x) + D(z')),
+with x the view's own input clamped to [1e-3, 1 - 1e-3]; the decoder's output conv starts at zero, so
+a fresh Refiner returns its inputs (up to that clamp) and learns the correction. ``residual=False``
+gives sigmoid(D(z')). The sigmoid never cuts gradients as a hard clamp would.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from trioman.toolkit.refiner.autoencoder import Decoder, Encoder
+from trioman.toolkit.refiner.config import RefinerConfig
+from trioman.toolkit.refiner.unet import ViewUNet
+
+INPUT_NAMES = ("coarse", "reference", "normal")  # the forward arguments, in view order
+OUTPUT_NAME = "refined"
+LOGIT_EPS = 1e-3
+
+
+class Refiner(nn.Module):
+    """``forward(coarse, reference=None, normal=None)`` with [B, 3, H, W] images in [0, 1] -> [B, V, 3, H, W].
+
+    H and W must be multiples of ``config.total_downsample``. ``reference`` (I^{T+k}) is required when
+    ``conditions`` includes "tex", ``normal`` (I_g^T) when it is "tex+geo"; inputs the conditions do not
+    use are ignored, so one batch feeds every ablation. ``exportable`` writes attention as plain
+    matmul/softmax (ONNX); otherwise it uses ``scaled_dot_product_attention``.
+    """
+
+    def __init__(self, config: RefinerConfig, exportable: bool = False) -> None:
+        super().__init__()
+        self.config = config
+        self.views = config.views
+        self.tex_views = min(config.views, 2)  # views through E_t / D_t: coarse (+ reference)
+        c = config
+        self.tex_encoder = Encoder(c.vae_widths, c.latent_channels, c.norm_groups)
+        self.tex_decoder = Decoder(c.vae_widths, c.latent_channels, c.norm_groups)
+        if self.views == 3:
+            self.geo_encoder = Encoder(c.vae_widths, c.latent_channels, c.norm_groups)
+            self.geo_decoder = Decoder(c.vae_widths, c.latent_channels, c.norm_groups)
+        self.unet = ViewUNet(
+            c.latent_channels, c.unet_widths, c.views, c.attention_heads, c.norm_groups, c.attention_from_level, not exportable
+        )
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return INPUT_NAMES[: self.views]
+
+    def check_inputs(self, coarse: torch.Tensor, reference: torch.Tensor | None, normal: torch.Tensor | None) -> None:
+        """Raise ValueError/TypeError naming the argument for a missing or misshapen input."""
+        f = self.config.total_downsample
+        for name, x in zip(INPUT_NAMES, (coarse, reference, normal)):
+            if name not in self.input_names:
+                continue
+            if x is None:
+                raise ValueError(f"{name}: required with conditions={self.config.conditions!r}")
+            if not isinstance(x, torch.Tensor) or not x.is_floating_point():
+                raise TypeError(f"{name}: expected a float torch.Tensor [B, 3, H, W] in [0, 1], got {type(x).__name__}")
+            if x.ndim != 4 or x.shape[1] != 3 or x.shape[0] < 1:
+                raise ValueError(f"{name}: expected shape [B, 3, H, W], got {tuple(x.shape)}")
+            if x.shape[2] % f or x.shape[3] % f or x.shape[2] == 0 or x.shape[3] == 0:
+                raise ValueError(f"{name}: H and W must be positive multiples of {f} (total downsampling), got {tuple(x.shape[2:])}")
+            if x.shape != coarse.shape:
+                raise ValueError(f"{name}: shape {tuple(x.shape)} differs from coarse {tuple(coarse.shape)}")
+
+    def forward(self, coarse: torch.Tensor, reference: torch.Tensor | None = None, normal: torch.Tensor | None = None) -> torch.Tensor:
+        if not torch.jit.is_tracing():
+            self.check_inputs(coarse, reference, normal)
+        H, W = coarse.shape[2], coarse.shape[3]
+        v, vt = self.views, self.tex_views
+        images = [coarse, reference, normal][:v]
+        tex = torch.cat(images[:vt])  # [(vt B), 3, H, W], view-major
+        z_tex, skips_tex = self.tex_encoder(tex)
+        c, h, w = z_tex.shape[1], z_tex.shape[2], z_tex.shape[3]
+        z = z_tex.reshape(vt, -1, c, h, w)  # [vt, B, c, h, w]
+        if v == 3:
+            z_geo, skips_geo = self.geo_encoder(normal)
+            z = torch.cat([z, z_geo[None]])
+        z = self.unet(z.transpose(0, 1).reshape(-1, c, h, w))  # (b v) order in and out
+        z = z.reshape(-1, v, c, h, w).transpose(0, 1)  # [V, B, c, h, w]
+        logits = self.tex_decoder(z[:vt].reshape(-1, c, h, w), skips_tex)  # [(vt B), 3, H, W]
+        if v == 3:
+            logits = torch.cat([logits, self.geo_decoder(z[2], skips_geo)])
+        if self.config.residual:
+            x = torch.cat(images).clamp(LOGIT_EPS, 1.0 - LOGIT_EPS)
+            logits = logits + torch.log(x) - torch.log(1.0 - x)
+        return torch.sigmoid(logits).reshape(v, -1, 3, H, W).transpose(0, 1)
+
+
+def export_inputs(config: RefinerConfig | Refiner, batch: int = 2, seed: int = 0) -> tuple[torch.Tensor, ...]:
+    """Example inputs (coarse[, reference[, normal]]) [batch, 3, S, S] in [0, 1], S = image_size, one per
+    input the conditions use (trace with batch >= 2; see ``INPUT_NAMES`` / ``Refiner.input_names``)."""
+    if isinstance(config, Refiner):
+        config = config.config
+    if not isinstance(batch, int) or batch < 1:
+        raise ValueError(f"batch: must be a positive integer, got {batch!r}")
+    g = torch.Generator().manual_seed(seed)
+    shape = (batch, 3, config.image_size, config.image_size)
+    return tuple(torch.rand(shape, generator=g) for _ in range(config.views))
