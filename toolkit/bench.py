@@ -3,21 +3,22 @@
 Targets: ``synth`` (time per stage and peak memory of synthesising a subject); ``train`` (avatar
 quality against training time per preset, and the rasterizer's speed against the brute-force and
 dense references); ``render`` (the numpy runtime renderer against the torch rasterizer's forward and
-the brute-force oracle, and the cost of Gaussians the view does not need). Timings are wall clock on the machine named in the report; nothing here is a
-timed test.
+the brute-force oracle, and the cost of Gaussians the view does not need); ``models`` (Refiner and
+Examiner trained on a synthetic corpus, evaluated on held-out subjects). Timings are wall clock on
+the machine named in the report; nothing here is a timed test.
 """
 
 from __future__ import annotations
 
 import argparse
 
-TARGETS = ("synth", "train", "render")
+TARGETS = ("synth", "train", "render", "models")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", choices=TARGETS, help="what to benchmark")
     parser.add_argument("--out", default="out/bench", help="report folder (default out/bench)")
-    parser.add_argument("--size", type=int, default=256, help="image side for synth (default 256)")
+    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train 256, models 128)")
     parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--presets", default="quick,full", help="train: presets to run, comma-separated")
@@ -26,6 +27,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-training", action="store_true", help="train: only the rasterizer timings")
     parser.add_argument("--avatar-run", default=None, metavar="RUN",
                         help="render: a trained run folder (default: the untrained default avatar)")
+    parser.add_argument("--corpus", default="out/corpus", help="models: corpus folder, built when absent (default out/corpus)")
+    parser.add_argument("--subjects", type=int, default=10, help="models: training subjects when building the corpus")
+    parser.add_argument("--heldout", type=int, default=2, help="models: held-out subjects when building the corpus")
+    parser.add_argument("--refiner-steps", type=int, default=1000, help="models: Refiner training steps per condition")
+    parser.add_argument("--refiner-size", choices=("compact", "default"), default="compact", help="models: Refiner widths")
+    parser.add_argument("--crop", type=int, default=64, help="models: Refiner training crop side (default 64)")
+    parser.add_argument("--examiner-steps", type=int, default=1000, help="models: Examiner training steps")
+    parser.add_argument("--batch", type=int, default=4, help="models: training batch size")
+    parser.add_argument("--examiner", default="examiner_nano", help="models: Examiner config name (default examiner_nano)")
 
 
 def _machine() -> str:
@@ -211,11 +221,20 @@ def run(args: argparse.Namespace) -> int:
 
     from trioman.runtime.image_io import atomic_write_text
 
-    report = {"synth": bench_synth, "train": bench_train, "render": bench_render}[args.target](args)
+    if args.size is None:
+        args.size = 128 if args.target == "models" else 256
+    if args.target == "models":
+        from trioman.toolkit.bench_models import bench_models, models_markdown
+
+        report = bench_models(args)
+        report["machine"], report["peak_rss_mib"] = _machine(), _peak_rss_mib()
+    else:
+        report = {"synth": bench_synth, "train": bench_train, "render": bench_render}[args.target](args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / f"{args.target}.json", json.dumps(report, indent=2) + "\n")
-    md = {"synth": _synth_markdown, "train": _train_markdown, "render": _render_markdown}[args.target](report)
+    md = (models_markdown(report) if args.target == "models" else
+          {"synth": _synth_markdown, "train": _train_markdown, "render": _render_markdown}[args.target](report))
     atomic_write_text(out / f"{args.target}.md", md)
     print(md)
     print(f"bench: report {out / (args.target + '.md')}")

@@ -34,6 +34,8 @@ COMMANDS = (
     Command("export", "trioman.export.command", "export a trained avatar as a portable avatar folder (numpy + ONNX)", "train"),
     Command("synth-corpus", "trioman.toolkit.corpus_command", "synthetic subjects + baselines + triplets for the Refiner/Examiner", "train"),
     Command("triplets", "trioman.toolkit.triplets_command", "GT / coarse / normal-map triplets of a trained run", "train"),
+    Command("train-refiner", "trioman.toolkit.refiner_command", "train the Refiner on a synthetic corpus", "train"),
+    Command("train-examiner", "trioman.toolkit.examiner_command", "train the Examiner on a synthetic corpus", "train"),
     Command("animate", "trioman.runtime.animate", "animate an exported avatar with a motion, as an MP4 (no torch)"),
     Command("render", "trioman.runtime.render_command", "render one image of an exported avatar (no torch)"),
     Command("inspect", "trioman.runtime.inspect", "validate a subject folder and print a summary"),

@@ -1,0 +1,72 @@
+"""Refiner/Examiner training glue and `bench models` on a fabricated corpus (random triplet files: the
+glue, not the models' quality, is under test here; the models have their own tests)."""
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from trioman.cli import main  # noqa: E402
+from trioman.toolkit.bench_models import bench_models, models_markdown  # noqa: E402
+from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
+from trioman.toolkit.model_training import FitConfig, random_crop  # noqa: E402
+from trioman.toolkit.triplets import TripletSet  # noqa: E402
+
+S = 32
+
+
+def fake_triplets(path, seed, n=8):
+    rng = np.random.default_rng(seed)
+    img = lambda: rng.integers(0, 256, (n, S, S, 3), dtype=np.uint8)  # noqa: E731
+    np.savez(path, meta=np.array(json.dumps({"version": 1})), gt=img(), coarse=img(), normal=img(),
+             mask=rng.integers(0, 256, (n, S, S), dtype=np.uint8), frame=np.arange(n, dtype=np.int32),
+             split=np.array(["train"] * (n - 3) + ["test"] * 3), sequence=np.array(["a"] * (n - 3) + ["b"] * 3),
+             view_yaw=rng.uniform(-3, 3, n).astype(np.float32))
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    root = tmp_path_factory.mktemp("corpus")
+    subjects = [{"name": "s00", "role": "train"}, {"name": "s01", "role": "train"}, {"name": "s02", "role": "heldout"}]
+    for s in subjects:
+        folder = root / "triplets" / ("all" if s["role"] == "train" else "heldout")
+        folder.mkdir(parents=True, exist_ok=True)
+        fake_triplets(folder / f"{s['name']}.npz", seed=len(s["name"]) + int(s["name"][1:]))
+    (root / CORPUS_JSON).write_text(json.dumps({"config": {}, "subjects": subjects}))
+    return root
+
+
+def test_random_crop_takes_one_window_per_sample(corpus):
+    ts = TripletSet.load([corpus / "triplets" / "all" / "s00.npz"])
+    t = ts.sample(np.random.default_rng(0), 3)
+    c = random_crop(t, 16, np.random.default_rng(1))
+    assert c.gt.shape == (3, 16, 16, 3) and c.mask.shape == (3, 16, 16)
+    for b in range(3):  # every image of a sample is cut at the same place
+        hits = [(y, x) for y in range(S - 15) for x in range(S - 15) if np.array_equal(t.gt[b, y:y + 16, x:x + 16], c.gt[b])]
+        assert any(np.array_equal(t.coarse[b, y:y + 16, x:x + 16], c.coarse[b]) for y, x in hits)
+    assert random_crop(t, None, np.random.default_rng(0)) is t
+    with pytest.raises(ValueError, match="crop: must be a multiple of 16"):
+        FitConfig(crop=20)
+
+
+def test_train_commands_and_bench_models(corpus, tmp_path):
+    run = tmp_path / "ref"
+    assert main(["train-refiner", "--corpus", str(corpus), "--out", str(run), "--steps", "2", "--batch", "2",
+                 "--crop", "16", "--conditions", "tex"]) == 0
+    info = json.loads((run / "fit.json").read_text())
+    assert info["conditions"] == "tex" and info["config"]["image_size"] == 16 and (run / "checkpoints").is_dir()
+    assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex"), "--steps", "2", "--batch", "2"]) == 0
+    args = argparse.Namespace(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),
+                              refiner_steps=2, examiner_steps=2, batch=2, examiner="examiner_nano", crop=16,
+                              refiner_size="compact")
+    r = bench_models(args)
+    assert r["heldout_test_frames"] == 3
+    assert set(r["metrics"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)"}
+    assert all(np.isfinite(v) for m in r["metrics"].values() for v in m.values())
+    assert 0 <= r["examiner_auroc_real_vs_coarse"] <= 1 and (tmp_path / "bench" / "examiner_scores.png").is_file()
+    assert "Examiner AUROC" in models_markdown(r)
+    again = bench_models(args)  # complete runs are reused, with the timings of the run that trained
+    assert again["training"] == r["training"]

@@ -1,0 +1,29 @@
+"""``trioman train-refiner --corpus DIR --out RUN``: train the Refiner on a synthetic corpus's training
+subjects (toolkit/model_training.py); resumes a run folder that has checkpoints."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--corpus", required=True, help="corpus folder (trioman synth-corpus)")
+    parser.add_argument("--out", required=True, help="run folder (checkpoints, fit.json)")
+    parser.add_argument("--conditions", choices=("none", "tex", "tex+geo"), default="tex+geo")
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--batch", type=int, default=4)
+    parser.add_argument("--crop", type=int, default=64, help="training crop side, a multiple of 16 (default 64)")
+    parser.add_argument("--size", choices=("compact", "default"), default="compact", help="Refiner widths")
+    parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all", help="corpus variant")
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def run(args: argparse.Namespace) -> int:
+    from trioman.toolkit.model_training import FitConfig, fit_refiner
+    from trioman.toolkit.train.command import load_lpips_or_say_why
+
+    fit = FitConfig(steps=args.steps, batch=args.batch, crop=args.crop, seed=args.seed, baseline_frames=args.baseline_frames)
+    _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=load_lpips_or_say_why("train-refiner"))
+    print(f"train-refiner: {info['checkpoint']} ({args.conditions}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
+          f"final loss {info['final_loss']:.4f})")
+    return 0
