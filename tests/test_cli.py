@@ -16,7 +16,8 @@ def test_help_lists_every_command_without_torch():
 @pytest.mark.parametrize("cmd", [c for c in COMMANDS if c.extra == "train"], ids=lambda c: c.name)
 def test_training_command_without_torch_names_the_extra(cmd, tmp_path):
     positional = {"bench": ["synth"], "train": [str(tmp_path / "subject")], "eval": [str(tmp_path / "run")],
-                  "export": ["avatar", str(tmp_path / "run")], "triplets": [str(tmp_path / "run")]}
+                  "export": ["avatar", str(tmp_path / "run")], "triplets": [str(tmp_path / "run")],
+                  "train-refiner": ["--corpus", str(tmp_path / "c")], "train-examiner": ["--corpus", str(tmp_path / "c")]}
     args = [cmd.name, *positional.get(cmd.name, []), "--out", str(tmp_path / "x")]
     proc = run_python(f"import sys; from trioman.cli import main; sys.exit(main({args!r}))", block_torch=True)
     assert proc.returncode == 1
