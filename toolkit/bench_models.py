@@ -16,13 +16,12 @@ their run folder is complete, so a rerun only evaluates.
 from __future__ import annotations
 
 import argparse
-import json
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from trioman.toolkit.bench_render import _best
 from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
 from trioman.toolkit.examiner import auroc
 from trioman.toolkit.metrics import evaluate_batch
@@ -34,16 +33,6 @@ from trioman.toolkit.triplets import TripletSet
 @torch.no_grad()
 def _batched(fn, *arrays, batch: int = 8) -> torch.Tensor:
     return torch.cat([fn(*(a[i:i + batch] for a in arrays)) for i in range(0, len(arrays[0]), batch)])
-
-
-def _time_per_frame(fn, repeats: int = 5) -> float:
-    fn()
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def _metrics(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict[str, float]:
@@ -82,8 +71,9 @@ def bench_models(args: argparse.Namespace) -> dict:
     auc = auroc(torch.from_numpy(np.r_[scores["GT"], scores["coarse"]]), torch.from_numpy(labels))
 
     one = refiner_batch(test._replace(**{k: getattr(test, k)[:1] for k in test._fields}))
-    timing = {f"refiner_{c}_ms": 1000 * _time_per_frame(lambda: refiners[c](*refiner_inputs(one, c))) for c in CONDITIONS}
-    timing["examiner_ms"] = 1000 * _time_per_frame(lambda: examiner(one.coarse, one.reference))
+    with torch.no_grad():
+        timing = {f"refiner_{c}_ms": 1000 * _best(lambda: refiners[c](*refiner_inputs(one, c)), 5) for c in CONDITIONS}
+        timing["examiner_ms"] = 1000 * _best(lambda: examiner(one.coarse, one.reference), 5)
     figure = out / "examiner_scores.png"
     _density_plot(scores, figure)
     return {"corpus": str(corpus), "heldout_test_frames": len(gt), "size": int(gt.shape[-1]), "metrics": rows,

@@ -34,6 +34,7 @@ from trioman.runtime.formats.common import (
     _move_into_place,
     _plain_json,
     _write_npz,
+    check_header,
 )
 from trioman.runtime.image_io import fsync_dir, temp_sibling
 from trioman.runtime.skeleton import Skeleton
@@ -67,27 +68,7 @@ def sha256_file(path: Path) -> str:
 
 
 def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
-    if not isinstance(meta, dict):
-        raise _fail(where, None, f"expected a JSON object, got {type(meta).__name__}")
-    fmt = meta.get("format")
-    if fmt != AVATAR_FORMAT:
-        raise _fail(where, "format", f"expected {AVATAR_FORMAT!r}, got {fmt!r}: not a TrioMan avatar")
-    version = meta.get("version")
-    if not _is_int(version):
-        raise _fail(where, "version", f"expected an integer, got {version!r}")
-    if version != AVATAR_VERSION:
-        raise _fail(where, "version", f"unknown version {version} (this trioman reads version {AVATAR_VERSION})")
-
-    def get(field: str) -> Any:
-        if field not in meta:
-            raise _fail(where, field, "missing field")
-        return meta[field]
-
-    body_model = get("body_model")
-    if not isinstance(body_model, str) or not body_model:
-        raise _fail(where, "body_model", f"expected a non-empty string, got {body_model!r}")
-    if get("units") != "m":
-        raise _fail(where, "units", f"expected 'm' (metres), got {meta['units']!r}")
+    get = check_header(meta, where, AVATAR_FORMAT, AVATAR_VERSION, "avatar")
     n = get("num_gaussians")
     if not _is_int(n) or n <= 0:
         raise _fail(where, "num_gaussians", f"expected a positive integer, got {n!r}")

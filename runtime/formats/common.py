@@ -11,7 +11,7 @@ import math
 import os
 import shutil
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -134,3 +134,30 @@ def _move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
         os.rename(old, target)
         raise
     shutil.rmtree(old, ignore_errors=True)
+
+
+def check_header(meta: Any, where: Any, fmt: str, version: int, kind: str) -> Callable[[str], Any]:
+    """Check the fields every TrioMan JSON header shares (a JSON object; format, version, non-empty
+    body_model, units "m") -> ``get(field)``, which raises FormatError for a missing field."""
+    if not isinstance(meta, dict):
+        raise _fail(where, None, f"expected a JSON object, got {type(meta).__name__}")
+    found = meta.get("format")
+    if found != fmt:
+        raise _fail(where, "format", f"expected {fmt!r}, got {found!r}: not a TrioMan {kind}")
+    v = meta.get("version")
+    if not _is_int(v):
+        raise _fail(where, "version", f"expected an integer, got {v!r}")
+    if v != version:
+        raise _fail(where, "version", f"unknown version {v} (this trioman reads version {version})")
+
+    def get(field: str) -> Any:
+        if field not in meta:
+            raise _fail(where, field, "missing field")
+        return meta[field]
+
+    body_model = get("body_model")
+    if not isinstance(body_model, str) or not body_model:
+        raise _fail(where, "body_model", f"expected a non-empty string, got {body_model!r}")
+    if get("units") != "m":
+        raise _fail(where, "units", f"expected 'm' (metres), got {meta['units']!r}")
+    return get

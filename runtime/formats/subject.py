@@ -39,6 +39,7 @@ from trioman.runtime.formats.common import (
     _plain_json,
     _real,
     _write_npz,
+    check_header,
 )
 from trioman.runtime.skeleton import SkinnedMesh
 
@@ -174,27 +175,7 @@ class Subject:
 
 
 def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
-    if not isinstance(meta, dict):
-        raise _fail(where, None, f"expected a JSON object, got {type(meta).__name__}")
-    fmt = meta.get("format")
-    if fmt != SUBJECT_FORMAT:
-        raise _fail(where, "format", f"expected {SUBJECT_FORMAT!r}, got {fmt!r}: not a TrioMan subject")
-    version = meta.get("version")
-    if not _is_int(version):
-        raise _fail(where, "version", f"expected an integer, got {version!r}")
-    if version != SUBJECT_VERSION:
-        raise _fail(where, "version", f"unknown version {version} (this trioman reads version {SUBJECT_VERSION})")
-
-    def get(field: str) -> Any:
-        if field not in meta:
-            raise _fail(where, field, "missing field")
-        return meta[field]
-
-    body_model = get("body_model")
-    if not isinstance(body_model, str) or not body_model:
-        raise _fail(where, "body_model", f"expected a non-empty string, got {body_model!r}")
-    if get("units") != "m":
-        raise _fail(where, "units", f"expected 'm' (metres), got {meta['units']!r}")
+    get = check_header(meta, where, SUBJECT_FORMAT, SUBJECT_VERSION, "subject")
     if get("up_axis") != "z":
         raise _fail(where, "up_axis", f"expected 'z', got {meta['up_axis']!r}")
     for field in ("width", "height", "num_frames"):
