@@ -8,14 +8,22 @@ Outputs: rgb = sum w c + T background, alpha = 1 - T, and depth = sum w z, the a
 camera depths, NOT normalised (depth / alpha is the expected depth of the covered part).
 
 Pipeline. :func:`~.projection.project` (float64, O(N) cheap culls, covariances for the survivors)
--> per-tile depth-sorted lists of (tile, Gaussian) pairs (:func:`~.tiles.bin_gaussians`) -> dense
-evaluation of blocks [kb, tiles, s^2] (Gaussian, tile, pixel; the list axis outermost, so the running
-product over it is kb vectorised multiplies): chunks of tiles sorted by list length, each walked
-along the lists in blocks of kb Gaussians that carry the per-pixel T. Per block, each pair's
-(u0, a, b, v0, c) (:func:`_block_alpha`, anchored at the tile centre in float64) become the pixels'
-u, v by one matrix product each. A block holds at most ``chunk_elements`` pixel-Gaussian entries,
-which bounds peak memory independently of N and of the image size; a tile leaves the walk once all
-its pixels have stopped.
+-> per-tile depth-sorted lists of (tile, Gaussian) pairs (:func:`~.tiles.bin_gaussians`) -> a float32
+table with one column per pair (:func:`_pair_table`: the Cholesky coefficients anchored at the
+pair's tile centre in float64, log opacity, colour, depth) -> dense evaluation of blocks
+[kb, tiles, s^2] (list position, tile, pixel; the list axis outermost, so the running product over it
+is kb vectorised multiplies): chunks of tiles sorted by list length, each walked along the lists in
+blocks of kb positions that carry the per-pixel T (:func:`_composite`). Per block, the pairs'
+(u0, a, b, v0, c) become the pixels' u, v by one small matrix product each (:func:`_block_alpha`).
+A block holds at most ``chunk_elements`` pixel-Gaussian entries, which bounds the per-block memory
+independently of N and of the image size (the pair table is O(pairs), like the binning); a tile
+leaves the walk once all its pixels have stopped or its list is done.
+
+Cost. Most of the time is the dense evaluation (exp dominates it), then the per-block gathers and
+the colour sums (one batched matrix product per block). Numpy's generic paths are avoided where
+they are slow: 2D strided stores and row gathers with a short inner axis (the pair table is
+column-major and built from 1D gathers), boolean-mask assignment (the alpha skip multiplies by the
+mask), row broadcasts when every opacity is 1, and the [H, W, 3] broadcast of the background.
 
 Precision. alpha, T and the colour sums are float32. T is a sequential float32 product, exactly the
 stop test's ``T * (1 - alpha) <= 1e-4`` on float32 values. The quadratic form is evaluated in
@@ -25,7 +33,7 @@ pixels stay accurate for extreme and far-off-centre Gaussians.
 Tile size. The dense cost is pairs x s^2, the binning cost grows with pairs. The avatar's Gaussians
 are small (radius boxes ~9 px at 256 x 256) and its background pixels never stop, so tiles rarely
 leave the walk early and the dense cost dominates: 4 x 4 tiles (``DEFAULT_TILE``) render the default
-avatar at 256 x 256 in about 35 ms against 39 ms for 8 x 8 and 90 ms for 16 x 16 (2-core x86_64,
+avatar at 256 x 256 about 20 % faster than 8 x 8 and 1.6 x faster than 2 x 2 (2-core x86_64,
 ``trioman bench render`` has the current numbers). The result does not depend on the tile size.
 """
 
@@ -45,13 +53,16 @@ from trioman.runtime.render.projection import (
 from trioman.runtime.render.tiles import bin_gaussians
 
 DEFAULT_TILE = 4  # tile side in pixels (module doc)
-DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array)
+DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array);
+# 4 x larger blocks were 2-3 x slower on a loaded 2-core machine (OpenBLAS threads [n, 3] @ [3, s^2] then)
 KB_MIN = 8  # shortest block along the lists
 
 _F32 = np.float32
 _THR_A32 = _F32(ALPHA_THRESHOLD)
 _THR_T32 = _F32(TRANSMITTANCE_THRESHOLD)
+_MAX_A32 = _F32(MAX_ALPHA)
 _LOG_ZERO = -1e30  # log opacity of the padding Gaussian
+_PAIR_SLICE = 1 << 16  # pairs per slice of the pair table's float64 arithmetic
 
 
 class RenderOutput(NamedTuple):
@@ -60,19 +71,44 @@ class RenderOutput(NamedTuple):
     depth: np.ndarray  # [H, W] float32, sum of w_i z_i (not normalised)
 
 
-def _gaussian_table(p, opacities, colors) -> tuple[np.ndarray, np.ndarray]:
-    """Per projected Gaussian: float64 [M + 1, 5] mean2d x, y, Cholesky a, b, c scaled by sqrt(1/2),
-    and float32 [M + 1, 5] log o, rgb, z; row M is a padding Gaussian that is transparent everywhere."""
-    m = len(p.ids)
-    gq = np.zeros((m + 1, 5))
-    gq[:m, 0:2] = p.means2d
-    gq[:m, 2:5] = p.chol * np.sqrt(0.5)
-    gf = np.zeros((m + 1, 5), dtype=_F32)
-    gf[:m, 0] = np.log(opacities[p.ids].astype(np.float64))
-    gf[:m, 1:4] = colors[p.ids]
-    gf[:m, 4] = p.depths
-    gf[m, 0] = _LOG_ZERO
-    return gq, gf
+def _pair_table(p, opacities, colors, bins, s: int) -> np.ndarray:
+    """float32 [10, P + 1], one column per (tile, Gaussian) pair of :func:`~.tiles.bin_gaussians`:
+    u0, a, b, v0, c (the Cholesky form scaled by sqrt(1/2), anchored at the centre of the pair's tile, see
+    :func:`_block_alpha`), log o, rgb, z. Row P is the padding pair, transparent everywhere.
+
+    The anchoring is float64, rounded to float32 once: (u0, v0) = (a dx + b dy, c dy) with
+    (dx, dy) = tile centre - mean2d. Built column by column from 1D gathers (a 2D row gather or
+    a strided block store costs several times more in numpy)."""
+    g = bins.pair_gauss
+    n_pairs = len(g)
+    tab = np.empty((10, n_pairs + 1), dtype=_F32)
+    abc = p.chol * np.sqrt(0.5)
+    ty, tx = np.divmod(np.arange(len(bins.tile_count)), bins.tiles_x)
+    cx, cy = tx * s + s / 2, ty * s + s / 2  # tile centres
+    tile = np.repeat(np.arange(len(bins.tile_count), dtype=np.int32), bins.tile_count)  # pairs are grouped by tile
+    for j0 in range(0, n_pairs, _PAIR_SLICE):  # float64 temporaries of at most _PAIR_SLICE pairs
+        j1 = min(j0 + _PAIR_SLICE, n_pairs)
+        gs, ts = g[j0:j1], tile[j0:j1]
+        dy = np.take(cy, ts) - np.take(p.means2d[:, 1], gs)  # tile centre - mean2d, float64
+        dx = np.take(cx, ts) - np.take(p.means2d[:, 0], gs)
+        coef = np.take(abc[:, 2], gs)  # c
+        tab[4, j0:j1] = coef
+        coef *= dy
+        tab[3, j0:j1] = coef  # v0 = c dy
+        np.take(abc[:, 0], gs, out=coef, mode="clip")  # a
+        tab[1, j0:j1] = coef
+        dx *= coef
+        np.take(abc[:, 1], gs, out=coef, mode="clip")  # b
+        tab[2, j0:j1] = coef
+        coef *= dy
+        dx += coef
+        tab[0, j0:j1] = dx  # u0 = a dx + b dy
+    per_gauss = [np.log(opacities[p.ids].astype(np.float64)), *(colors[p.ids, k] for k in range(3)), p.depths]
+    for k, col in enumerate(per_gauss):
+        np.take(np.asarray(col, dtype=_F32), g, out=tab[5 + k, :n_pairs], mode="clip")
+    tab[:, n_pairs] = 0.0
+    tab[5, n_pairs] = _LOG_ZERO
+    return tab
 
 
 def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -84,86 +120,89 @@ def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([ones, L_col, L_row]).astype(_F32), np.stack([ones, L_row]).astype(_F32)
 
 
-def _block_alpha(Q: np.ndarray, logo: np.ndarray, centre: np.ndarray,
-                 bases: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """Q [n, 5] (float64 Gaussian-table rows of n pairs), logo [n, 1] float32 log opacities, centre [n, 2] pixel coordinates of their tiles'
-    centres -> alpha [n, s^2] = min(0.99, o exp(-sigma)), 0 where skipped (< 1/255).
+def _block_alpha(X: np.ndarray, bases: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """X [n, 10] (the columns of :func:`_pair_table` of n pairs, transposed) -> alpha [n, s^2] =
+    min(0.99, o exp(-sigma)), 0 where skipped (< 1/255), float32.
 
-    sigma = u^2 + v^2 in Cholesky form anchored at the tile centre: (u0, v0) = (a dx + b dy, c dy) with
-    (dx, dy) = centre - mean2d in float64, then the pixels' u, v from :func:`_offset_bases`. No box test
-    is needed here: the radius box circumscribes the ellipse where alpha >= 1/255 (:mod:`.tiles`), so
-    every pixel outside the box is skipped anyway."""
-    d = centre - Q[:, 0:2]
-    coef = np.empty((len(Q), 5), dtype=_F32)
-    coef[:, 0] = Q[:, 2] * d[:, 0] + Q[:, 3] * d[:, 1]
-    coef[:, 1:3] = Q[:, 2:4]
-    coef[:, 3] = Q[:, 4] * d[:, 1]
-    coef[:, 4] = Q[:, 4]
-    G = np.square(coef[:, :3] @ bases[0])  # u^2 [n, s^2]
-    v = coef[:, 3:] @ bases[1]
+    sigma = u^2 + v^2 in Cholesky form anchored at the tile centre, the pixels' u, v from
+    :func:`_offset_bases` (one small matrix product each). No box test is needed here: the radius box
+    circumscribes the ellipse where alpha >= 1/255 (:mod:`.tiles`), so every pixel outside the box is
+    skipped anyway."""
+    G = np.square(X[:, 0:3] @ bases[0])  # u^2 [n, s^2]
+    v = X[:, 3:5] @ bases[1]
     G += np.square(v, out=v)
-    np.subtract(logo, G, out=G)  # log o - sigma
+    if X[:, 5].any():
+        np.subtract(X[:, 5:6], G, out=G)  # log o - sigma
+    else:  # every opacity is 1: log o - sigma = -sigma exactly, without the row broadcast
+        np.negative(G, out=G)
     np.exp(G, out=G)
-    np.minimum(G, MAX_ALPHA, out=G)
-    G[G < _THR_A32] = 0.0  # skip alpha < 1/255
+    keep = G >= _THR_A32  # skip alpha < 1/255 (decided before the cap, as the cap is above it)
+    np.minimum(G, _MAX_A32, out=G)
+    G *= keep
     return G
 
 
-def _composite(gq, gf, bins, inside, s: int, chunk_elements: int):
-    """Front-to-back compositing of every tile. gq: :func:`_gaussian_table`; inside [T, s^2] bool
-    (pixel within the image). -> color [T, 4, s^2] (sum w c, sum w z) and T_final [T, s^2], float32."""
+def _composite(tab, bins, s: int, chunk_elements: int):
+    """Front-to-back compositing of every tile (tab: :func:`_pair_table`) -> color [T, 4, s^2]
+    (sum w c, sum w z) and T_final [T, s^2], float32. Every pixel of a tile is composited, those
+    beyond the image's right and bottom edges too (they are cropped afterwards).
+
+    Tiles go by decreasing list length in chunks; a chunk is walked along its lists in blocks
+    [kb, ta, s^2] (list position, tile, pixel). Per block the running product over the kb positions is
+    kb vectorised float32 multiplies from each pixel's T (0 once stopped), so P[i] is exactly the
+    sequential T before position i. The state of the tiles still in the walk (T, T at the stop, colour
+    sums) is kept compact; a tile whose list is done or whose pixels have all stopped is written out."""
     tile_start, tile_count = bins.tile_start, bins.tile_count
-    pair_gauss = np.append(bins.pair_gauss, len(gq) - 1).astype(np.intp)  # pair P: the padding Gaussian
     n_pairs = len(bins.pair_gauss)
     n_tiles = len(tile_count)
-    ty, tx = np.divmod(np.arange(n_tiles), bins.tiles_x)
-    centres = np.stack([tx, ty], 1) * s + s / 2
     bases = _offset_bases(s)
-    color = np.zeros((n_tiles, 4, s * s), dtype=_F32)
-    T_final = np.ones((n_tiles, s * s), dtype=_F32)
+    s2 = s * s
+    color = np.zeros((n_tiles, 4, s2), dtype=_F32)
+    T_final = np.ones((n_tiles, s2), dtype=_F32)
     order = np.argsort(-tile_count, kind="stable")[:np.count_nonzero(tile_count)]
-    per = max(1, chunk_elements // (s * s * KB_MIN))
+    per = max(1, chunk_elements // (s2 * KB_MIN))
     for c0 in range(0, len(order), per):
-        tiles = order[c0:c0 + per]
+        tiles = order[c0:c0 + per]  # the tiles still in the walk, longest list first
         counts = tile_count[tiles]
-        T = inside[tiles].astype(_F32)  # T after the last included Gaussian
-        alive = inside[tiles].copy()  # until a pixel stops (False outside the image)
-        acc = np.zeros((len(tiles), 4, s * s), dtype=_F32)
-        local = np.arange(len(tiles))
+        starts = tile_start[tiles]
+        T = np.ones((len(tiles), s2), dtype=_F32)  # T of live pixels; 0 once stopped
+        T_stop = np.zeros_like(T)  # T at the stop of pixels that stopped
+        acc = np.zeros((len(tiles), 4, s2), dtype=_F32)
         k0 = 0
-        while len(local):
-            ta = len(local)
-            kb = int(min(max(KB_MIN, chunk_elements // (ta * s * s)), counts[local[0]] - k0))
-            t = tiles[local]
+        while True:
+            ta = len(tiles)
+            kb = int(min(max(KB_MIN, chunk_elements // (ta * s2)), counts[0] - k0))
             k = np.arange(k0, k0 + kb)[:, None]
-            gi = np.take(pair_gauss, np.where(k < counts[local], tile_start[t] + k, n_pairs))
-            gi = gi.reshape(-1)
-            Q = np.take(gq, gi, axis=0)  # [kb ta, 5]
-            F = np.take(gf, gi, axis=0)  # [kb ta, 5]
-            cen = np.broadcast_to(centres[t], (kb, ta, 2)).reshape(-1, 2)
-            alpha = _block_alpha(Q, F[:, :1], cen, bases).reshape(kb, ta, s * s)
-            live = alive[local]
-            P = np.empty((kb + 1, ta, s * s), dtype=_F32)  # T before each Gaussian, then after the last
-            np.multiply(T[local], live, out=P[0])
+            pairs = np.where(k < counts, starts + k, n_pairs).reshape(-1)  # [kb ta], P = padding
+            X = np.take(tab, pairs, axis=1, mode="clip").T  # [kb ta, 10]
+            alpha = _block_alpha(X, bases).reshape(kb, ta * s2)
+            P = np.empty((kb + 1, ta * s2), dtype=_F32)  # T before each position, then after the last
+            P[0] = T.reshape(-1)
             onem = np.subtract(_F32(1.0), alpha)
             for i in range(kb):
                 np.multiply(P[i], onem[i], out=P[i + 1])
-            incl = P[1:] > _THR_T32  # not stopped (a prefix of the block)
+            incl = P[1:] > _THR_T32  # not stopped (a prefix of the block; all False once stopped)
             w = np.multiply(alpha, P[:-1], out=alpha)
             w *= incl
-            feats = F[:, 1:].reshape(kb, ta, 4)
-            acc[local] += np.matmul(feats.transpose(1, 2, 0), w.transpose(1, 0, 2))
-            # T where a pixel stopped in this block: P at its number of included Gaussians
-            T_new = P[kb].copy()
-            stopped = np.flatnonzero(live & ~incl[-1])
-            n = np.count_nonzero(incl.reshape(kb, -1)[:, stopped], axis=0)
-            T_new.reshape(-1)[stopped] = P.reshape(kb + 1, -1)[n, stopped]
-            T[local] = np.where(live, T_new, T[local])
-            alive[local] = live & incl[-1]
+            acc += np.matmul(X[:, 6:10].reshape(kb, ta, 4).transpose(1, 2, 0), w.reshape(kb, ta, s2).transpose(1, 0, 2))
+            # pixels stopping in this block: T = P at their number of included positions
+            go_on = incl[-1]
+            stopping = np.flatnonzero((P[0] > 0.0) & ~go_on)
+            if len(stopping):  # n = number of included positions (incl is a prefix)
+                n = incl.view(np.uint8).sum(0, dtype=np.uint8 if kb < 256 else np.intp)
+                T_stop.reshape(-1)[stopping] = P[n[stopping], stopping]
+            T = np.multiply(P[kb], go_on).reshape(ta, s2)
             k0 += kb
-            local = local[(counts[local] > k0) & alive[local].any(1)]
-        color[tiles] = acc
-        T_final[tiles] = T
+            keep = (counts > k0) & go_on.reshape(ta, s2).any(1)
+            if not keep.all():
+                gone = ~keep
+                done = tiles[gone]
+                color[done] = acc[gone]
+                T_final[done] = T[gone] + T_stop[gone]
+                if not keep.any():
+                    break
+                tiles, counts, starts = tiles[keep], counts[keep], starts[keep]
+                T, T_stop, acc = T[keep], T_stop[keep], acc[keep]
     return color, T_final
 
 
@@ -203,17 +242,16 @@ def rasterize(
         return RenderOutput(np.broadcast_to(bg, (height, width, 3)).copy(), zeros, zeros.copy())
     s = tile_size
     bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, p.chol, opacities[p.ids])
-    li = np.arange(s)
-    ty, tx = np.divmod(np.arange(bins.tiles_x * bins.tiles_y), bins.tiles_x)
-    inside = ((ty[:, None, None] * s + li[:, None] < height) & (tx[:, None, None] * s + li < width)).reshape(-1, s * s)
-    color, T_final = _composite(*_gaussian_table(p, opacities, colors), bins, inside, s, chunk_elements)
-
-    def to_image(x):  # [T, C, s^2] -> [H, W, C]
-        img = x.reshape(bins.tiles_y, bins.tiles_x, x.shape[1], s, s).transpose(0, 3, 1, 4, 2)
-        return img.reshape(bins.tiles_y * s, bins.tiles_x * s, x.shape[1])[:height, :width]
-
-    color = to_image(color)
-    T = to_image(T_final[:, None])
-    rgb = color[..., :3] + T * bg
-    return RenderOutput(np.ascontiguousarray(rgb), np.ascontiguousarray(1.0 - T[..., 0]),
-                        np.ascontiguousarray(color[..., 3]))
+    color, T_final = _composite(_pair_table(p, opacities, colors, bins, s), bins, s, chunk_elements)
+    # tiles -> images: [T, C, s^2] -> C planes [H, W] (contiguous copies), then rgb interleaved once
+    ty, tx = bins.tiles_y, bins.tiles_x
+    planes = np.empty((4, ty, s, tx, s), dtype=_F32)
+    planes[:] = color.reshape(ty, tx, 4, s, s).transpose(2, 0, 3, 1, 4)
+    planes = planes.reshape(4, ty * s, tx * s)[:, :height, :width]
+    T = np.empty((ty, s, tx, s), dtype=_F32)
+    T[:] = T_final.reshape(ty, tx, s, s).transpose(0, 2, 1, 3)
+    T = T.reshape(ty * s, tx * s)[:height, :width]
+    rgb = np.empty((height, width, 3), dtype=_F32)
+    for k in range(3):
+        rgb[..., k] = planes[k] + T * bg[k] if bg[k] != 0 else planes[k]
+    return RenderOutput(rgb, 1.0 - T, np.ascontiguousarray(planes[3]))

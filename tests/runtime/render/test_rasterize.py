@@ -157,6 +157,17 @@ def test_opacity_zero_and_one():
     assert ref[1].max() > 0.99
 
 
+
+@pytest.mark.parametrize("chunk_elements", [1, 2048, 1 << 16])
+def test_all_opaque_and_mixed_opacity_blocks(chunk_elements):
+    # all opacities 1 (log o = 0: the evaluation skips the log-opacity row broadcast) next to blocks
+    # that mix opacity 1 with others and with the padding pair; every chunking gives the reference
+    scene = random_scene(6, n=120, width=43, height=37)
+    scene["opacities"][:] = 1.0
+    compare(scene, background=[0.3, 0.0, 1.0], chunk_elements=chunk_elements)
+    scene["opacities"][::3] = 0.6
+    compare(scene, background=[0.3, 0.0, 1.0], chunk_elements=chunk_elements)
+
 def test_zero_quaternions_are_identity():
     scene = random_scene(6, n=30)
     scene["quats"][::3] = 0.0
