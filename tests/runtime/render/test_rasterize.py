@@ -325,3 +325,29 @@ def test_renders_where_torch_cannot_be_imported():
         print("ok")
     """, block_torch=True)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_float32_prefilter_keeps_every_gaussian_the_exact_tests_keep(seed):
+    """The cheap cull may keep extra Gaussians, never drop one the float64 projection keeps: centres
+    straddling the near/far planes and the image borders, scales from 1e-6 to 1e2 m."""
+    from trioman.runtime.cameras import look_at
+    from trioman.runtime.render.projection import _prefilter, project
+
+    rng = np.random.default_rng(seed)
+    n = 4000
+    W, H = 64, 48
+    K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
+    vm = look_at(rng.normal(size=3) * 3, np.zeros(3))
+    z = np.concatenate([rng.uniform(-0.1, 0.1, n // 4), 0.01 + rng.normal(0, 1e-4, n // 4), rng.uniform(0.01, 30, n // 2)])
+    ang = rng.uniform(-1.5, 1.5, (n, 2)) * np.array([W / 2 / K[0, 0], H / 2 / K[1, 1]])
+    cam = np.concatenate([ang * np.abs(z)[:, None], z[:, None]], 1)
+    means = ((cam - vm[:3, 3]) @ vm[:3, :3]).astype(np.float32)
+    scales = (10.0 ** rng.uniform(-6, 2, (n, 1)) * rng.uniform(0.2, 1, (n, 3))).astype(np.float32)
+    quats = rng.normal(size=(n, 4)).astype(np.float32)
+    opac = rng.uniform(0, 1, n).astype(np.float32)
+    for far in (1e10, 5.0):
+        kept = set(_prefilter(means, scales, opac, vm[:3, :3], vm[:3, 3], K, W, H, 0.01, far).tolist())
+        exact = project(means, quats, scales, opac, vm, K, W, H, 0.01, far)
+        assert set(exact.ids.tolist()) <= kept
+        assert len(kept) < n  # it does cull
