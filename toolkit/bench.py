@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--crop", type=int, default=64, help="models: Refiner training crop side (default 64)")
     parser.add_argument("--examiner-steps", type=int, default=1000, help="models: Examiner training steps")
     parser.add_argument("--batch", type=int, default=4, help="models: training batch size")
+    parser.add_argument("--baseline-frames", default="all",
+                        help="models: corpus variants for the coarse frames, e.g. all,subset (each extra one adds a tex+geo Refiner)")
     parser.add_argument("--examiner", default="examiner_nano", help="models: Examiner config name (default examiner_nano)")
 
 

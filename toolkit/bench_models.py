@@ -16,6 +16,7 @@ their run folder is complete, so a rerun only evaluates.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +44,12 @@ def _metrics(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict[s
 def bench_models(args: argparse.Namespace) -> dict:
     corpus = Path(args.corpus)
     ccfg = CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size)
+    variants = [v for v in args.baseline_frames.split(",") if v]
     if not (corpus / CORPUS_JSON).is_file():
         build_corpus(corpus, ccfg)
+    for v in variants:  # coarse frames from baselines trained on a subset: built on demand
+        if v != "all":
+            build_corpus(corpus, dataclasses.replace(ccfg, baseline_frames=v))
     out = Path(args.out)
     runs = out / "runs"
     fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop)
@@ -52,6 +57,11 @@ def bench_models(args: argparse.Namespace) -> dict:
     for cond in CONDITIONS:
         refiners[cond], infos[f"refiner_{cond}"] = fit_refiner(corpus, runs / f"refiner_{cond.replace('+', '_')}", cond, fit,
                                                                args.refiner_size)
+    for v in variants:
+        if v != "all":
+            key = f"refiner_tex+geo_{v}"
+            refiners[key], infos[key] = fit_refiner(corpus, runs / f"refiner_tex_geo_{v}", "tex+geo",
+                                                    dataclasses.replace(fit, baseline_frames=v), args.refiner_size)
     examiner, infos["examiner"] = fit_examiner(corpus, runs / "examiner", args.examiner,
                                                FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None))
 
@@ -60,10 +70,12 @@ def bench_models(args: argparse.Namespace) -> dict:
     gt, coarse, ref, mask = tb.target, tb.coarse, tb.reference, nchw(test.mask[..., None])
     rows = {"coarse": _metrics(coarse, gt, mask)}
     refined = {}
-    for cond, model in refiners.items():
-        refined[cond] = _batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), cond))[:, 0],
-                                 coarse, ref, tb.normal)
-        rows[f"refined ({cond})"] = _metrics(refined[cond], gt, mask)
+    for key, model in refiners.items():
+        cond = model.config.conditions
+        refined[key] = _batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), cond))[:, 0],
+                                coarse, ref, tb.normal)
+        label = cond if key in CONDITIONS else f"{cond}, baselines on a {key.rsplit('_', 1)[1]} of frames"
+        rows[f"refined ({label})"] = _metrics(refined[key], gt, mask)
 
     score = lambda cand: _batched(lambda c, r: examiner(c, r), cand, ref).numpy()  # noqa: E731
     scores = {"GT": score(gt), "coarse": score(coarse), **{f"refined ({c})": score(refined[c]) for c in CONDITIONS}}

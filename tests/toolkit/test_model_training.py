@@ -61,7 +61,7 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex"), "--steps", "2", "--batch", "2"]) == 0
     args = argparse.Namespace(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),
                               refiner_steps=2, examiner_steps=2, batch=2, examiner="examiner_nano", crop=16,
-                              refiner_size="compact")
+                              refiner_size="compact", baseline_frames="all")
     r = bench_models(args)
     assert r["heldout_test_frames"] == 3
     assert set(r["metrics"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)"}
