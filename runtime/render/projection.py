@@ -113,8 +113,14 @@ def _rows(x: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return np.take(x, ids, axis=0).astype(np.float64)
 
 
-def _extent(opacities: np.ndarray) -> np.ndarray:
-    """Sigmas of the radius box: min(3.33, sqrt(2 ln(255 o))) (0 below o = 1/255). [M] -> [M]."""
+EXTENT_RULES = ("opacity", "3sigma")  # see project()
+
+
+def _extent(opacities: np.ndarray, rule: str = "opacity") -> np.ndarray:
+    """Sigmas of the radius box [M] -> [M]. "opacity": min(3.33, sqrt(2 ln(255 o))) (0 below o = 1/255),
+    where alpha >= 1/255 can reach; "3sigma": 3 for every Gaussian (gsplat's radius rule)."""
+    if rule == "3sigma":
+        return np.full(len(opacities), 3.0)
     with np.errstate(divide="ignore"):
         return np.minimum(np.sqrt(np.maximum(2.0 * np.log(opacities * 255.0), 0.0)), MAX_EXTENT)
 
@@ -177,8 +183,15 @@ def project(
     height: int,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
+    extent: str = "opacity",
 ) -> Projected:
-    """Float64 EWA projection of the Gaussians whose radius box reaches the image (inputs checked)."""
+    """Float64 EWA projection of the Gaussians whose radius box reaches the image (inputs checked).
+
+    ``extent`` is the radius rule: "opacity" (the default) reaches as far as alpha >= 1/255 can, so no
+    pixel a Gaussian contributes to is cut; "3sigma" is gsplat's fixed 3-sigma box, which cuts the
+    faint tails of opaque Gaussians (alpha up to o exp(-4.5) = 0.011 o at the box's edge)."""
+    if extent not in EXTENT_RULES:
+        raise ValueError(f"extent: expected one of {EXTENT_RULES}, got {extent!r}")
     f64 = np.float64
     vm = np.asarray(viewmat, dtype=f64)
     Kd = np.asarray(K, dtype=f64)
@@ -197,7 +210,7 @@ def project(
     jx = np.clip(tx / tz, -(cx / fx + 0.3 * tan_fovx), (width - cx) / fx + 0.3 * tan_fovx)
     jy = np.clip(ty / tz, -(cy / fy + 0.3 * tan_fovy), (height - cy) / fy + 0.3 * tan_fovy)
     mean2d = (mc[:, :2] @ Kd[:2, :2].T + Kd[:2, 2] * tz[:, None]) / tz[:, None]  # gsplat: K[:2] @ m / z
-    extent = _extent(_rows(opacities, ids))
+    extent = _extent(_rows(opacities, ids), extent)
 
     def on_screen(m2, r):
         return ((m2[:, 0] + r[:, 0] > 0) & (m2[:, 0] - r[:, 0] < width)

@@ -222,12 +222,15 @@ def rasterize(
     *,
     tile_size: int = DEFAULT_TILE,
     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
+    extent: str = "opacity",
 ) -> RenderOutput:
     """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]), float32; see the
     module doc. ``depth`` is the alpha-weighted sum of camera depths, not normalised. N == 0 or nothing
     visible gives the background. ``tile_size`` is the tile side; ``chunk_elements`` bounds the dense
     pixel x Gaussian blocks (peak memory). Neither changes the result beyond float32 rounding of the
-    colour sums."""
+    colour sums. ``extent`` is the radius rule (:func:`~.projection.project`): "opacity" (exact, the
+    default) bins each Gaussian to the tiles its alpha >= 1/255 ellipse touches; "3sigma" to the tiles
+    of its 3-sigma box, gsplat's rule (faster for opaque Gaussians, cuts their faint tails)."""
     arrays, width, height = check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height,
                                          background, near_plane, far_plane)
     means, quats, scales, opacities, colors, viewmat, K, background = arrays
@@ -236,12 +239,13 @@ def rasterize(
     if isinstance(chunk_elements, bool) or not isinstance(chunk_elements, int) or chunk_elements < 1:
         raise ValueError(f"chunk_elements: must be an int >= 1, got {chunk_elements!r}")
     bg = np.zeros(3, dtype=_F32) if background is None else background.astype(_F32)
-    p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
+    p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, extent)
     if len(p.ids) == 0:
         zeros = np.zeros((height, width), dtype=_F32)
         return RenderOutput(np.broadcast_to(bg, (height, width, 3)).copy(), zeros, zeros.copy())
     s = tile_size
-    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, p.chol, opacities[p.ids])
+    ellipse = (p.chol, opacities[p.ids]) if extent == "opacity" else (None, None)
+    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, *ellipse)
     color, T_final = _composite(_pair_table(p, opacities, colors, bins, s), bins, s, chunk_elements)
     # tiles -> images: [T, C, s^2] -> C planes [H, W] (contiguous copies), then rgb interleaved once
     ty, tx = bins.tiles_y, bins.tiles_x

@@ -71,6 +71,23 @@ def test_tile_size_does_not_change_the_result(tile_size):
         assert np.allclose(a, b, atol=2e-6, rtol=2e-6)
 
 
+def test_3sigma_extent_cuts_only_faint_tails():
+    """gsplat's fixed 3-sigma box loses at most the alpha beyond it, o exp(-4.5) < 0.012 per Gaussian,
+    and loses something on opaque scenes; the default opacity rule matches the oracle (above)."""
+    scene = random_scene(5, n=80, width=45, height=38)
+    scene["opacities"][:] = 1.0
+    exact, _ = compare(scene)
+    cut = render(scene, extent="3sigma")
+    diff = np.abs(cut.alpha - exact.alpha)
+    assert 1e-4 < diff.max() < 0.05 and np.isfinite(cut.rgb).all()
+    assert (cut.alpha <= exact.alpha + 1e-6).all()  # only tails are removed
+
+
+def test_unknown_extent_rule_is_rejected():
+    with pytest.raises(ValueError, match="extent"):
+        render(random_scene(0), extent="4sigma")
+
+
 def test_chunking_does_not_change_the_result():
     scene = random_scene(3, n=150, width=41, height=35)
     tiny, _ = compare(scene, chunk_elements=1)  # one tile per chunk, the shortest blocks
