@@ -11,6 +11,7 @@ import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -51,6 +52,7 @@ class FitConfig:
     baseline_frames: str = "all"  # which training-subject triplets: "all" or "subset" (corpus variants)
     crop: int | None = 64  # train on random square crops of this side (same place in every image of a
     # sample); the models are convolutional with position-free attention and run on full frames after
+    image_size: int | None = None  # resize the triplets to this side first (the Examiner's input size)
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch", "k_max"):
@@ -58,6 +60,8 @@ class FitConfig:
                 raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
         if self.crop is not None and (self.crop < 16 or self.crop % 16):
             raise ValueError(f"crop: must be a multiple of 16 (>= 16) or None, got {self.crop}")
+        if self.image_size is not None and (self.image_size < 16 or self.image_size % 16):
+            raise ValueError(f"image_size: must be a multiple of 16 (>= 16) or None, got {self.image_size}")
 
 
 def random_crop(t: Tuples, side: int | None, rng: np.random.Generator) -> Tuples:
@@ -71,8 +75,21 @@ def random_crop(t: Tuples, side: int | None, rng: np.random.Generator) -> Tuples
     return Tuples(*(np.stack([a[b, y:y + side, x:x + side] for b, (y, x) in enumerate(zip(ys, xs))]) for a in t))
 
 
-def _sampler(corpus: str | Path, fit: FitConfig):
-    data = TripletSet.load(triplet_paths(corpus, fit.baseline_frames)["train"])
+def training_triplets(source: str | Path | Sequence[str | Path], variant: str = "all") -> list[Path]:
+    """Triplet files to train on: a corpus folder's training subjects (of ``variant``), or the given
+    list of triplet .npz files (e.g. one subject's, ``trioman triplets``)."""
+    if isinstance(source, (str, Path)):
+        return triplet_paths(source, variant)["train"]
+    files = [Path(p) for p in source]
+    if not files:
+        raise ValueError("triplets: no triplet files given")
+    return files
+
+
+def _sampler(source: str | Path | Sequence[str | Path], fit: FitConfig):
+    data = TripletSet.load(training_triplets(source, fit.baseline_frames))
+    if fit.image_size is not None:
+        data = data.resized(fit.image_size)
     rng = np.random.default_rng(fit.seed)
     return data, (lambda: random_crop(data.sample(rng, fit.batch, fit.k_max), fit.crop, rng))
 
@@ -80,11 +97,17 @@ def _sampler(corpus: str | Path, fit: FitConfig):
 def _finish(run: Path, info: dict, previous: dict | None) -> dict:
     """Write fit.json; a run that was already complete keeps the record (and wall time) of the call
     that trained it."""
-    if previous is not None and previous.get("fit") == info["fit"]:
+    if previous is not None and _same_fit(previous.get("fit", {}), info["fit"]):
         return previous
     run.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run / "fit.json", json.dumps(info, indent=2) + "\n")
     return info
+
+
+def _same_fit(old: dict, new: dict) -> bool:
+    """Two fit records agree; fields added since ``old`` was written count at their defaults."""
+    defaults = asdict(FitConfig())
+    return all(old.get(k, defaults.get(k)) == v for k, v in new.items())
 
 
 def _previous(run: Path, steps: int) -> dict | None:
@@ -97,9 +120,10 @@ def _previous(run: Path, steps: int) -> dict | None:
     return json.loads((run / "fit.json").read_text())
 
 
-def fit_refiner(corpus: str | Path, run: str | Path, conditions: str = "tex+geo", fit: FitConfig = FitConfig(),
+def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, conditions: str = "tex+geo", fit: FitConfig = FitConfig(),
                 refiner_size: str = "compact", model_cfg: RefinerConfig | None = None, lpips=None) -> tuple[torch.nn.Module, dict]:
-    """Train a Refiner with ``conditions`` on the corpus's training subjects into ``run``. -> (model, info)."""
+    """Train a Refiner with ``conditions`` on the corpus's training subjects (or a list of triplet
+    files) into ``run``. -> (model, info)."""
     run = Path(run)
     previous = _previous(run, fit.steps)
     data, draw = _sampler(corpus, fit)
@@ -116,9 +140,10 @@ def fit_refiner(corpus: str | Path, run: str | Path, conditions: str = "tex+geo"
     return model, _finish(run, info, previous)
 
 
-def fit_examiner(corpus: str | Path, run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
+def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
                  ) -> tuple[torch.nn.Module, dict]:
-    """Train an Examiner (a registered config name) on the corpus's training subjects into ``run``."""
+    """Train an Examiner (a registered config name) on the corpus's training subjects (or a list of
+    triplet files) into ``run``, at the triplets' size or ``fit.image_size``."""
     run = Path(run)
     previous = _previous(run, fit.steps)
     data, draw = _sampler(corpus, fit)

@@ -132,6 +132,21 @@ class TripletSet:
     def __len__(self) -> int:
         return len(self.gt)
 
+    def resized(self, side: int) -> "TripletSet":
+        """The set with every image and mask resized to side x side (cv2.INTER_AREA; a copy)."""
+        import cv2
+
+        if not isinstance(side, int) or side < 1:
+            raise ValueError(f"side: must be a positive integer, got {side!r}")
+        if self.gt.shape[1:3] == (side, side):
+            return self
+
+        def rs(a: np.ndarray) -> np.ndarray:
+            return np.stack([cv2.resize(x, (side, side), interpolation=cv2.INTER_AREA) for x in a])
+
+        return TripletSet(rs(self.gt), rs(self.mask), rs(self.coarse), rs(self.normal), self.split, self.group,
+                          self.subject, self.view_yaw)
+
     def partners(self, i: int, k_max: int) -> np.ndarray:
         """Frames T+k of the same subject and sequence with 0 < |k| <= k_max (by position in the file)."""
         lo, hi = max(0, i - k_max), min(len(self), i + k_max + 1)

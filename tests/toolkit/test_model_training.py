@@ -2,6 +2,7 @@
 glue, not the models' quality, is under test here; the models have their own tests)."""
 
 import argparse
+import dataclasses
 import json
 
 import numpy as np
@@ -70,3 +71,27 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
     assert "Examiner AUROC" in models_markdown(r)
     again = bench_models(args)  # complete runs are reused, with the timings of the run that trained
     assert again["training"] == r["training"]
+
+
+def test_training_on_triplet_files_at_another_size(corpus, tmp_path):
+    """Models train on a list of triplet files (one subject's) and the Examiner on resized frames."""
+    from trioman.toolkit.model_training import fit_examiner, training_triplets
+
+    files = [corpus / "triplets" / "all" / "s00.npz"]
+    assert training_triplets(files) == files
+    with pytest.raises(ValueError, match="no triplet files"):
+        training_triplets([])
+    small = TripletSet.load(files).resized(16)
+    assert small.gt.shape == (8, 16, 16, 3) and small.mask.shape == (8, 16, 16) and small.gt.dtype == np.uint8
+    model, info = fit_examiner(files, tmp_path / "ex", fit=FitConfig(steps=2, batch=2, crop=None, image_size=16))
+    assert model.config.img_size == 16 and info["fit"]["image_size"] == 16
+    with pytest.raises(ValueError, match="image_size"):
+        FitConfig(image_size=20)
+
+
+def test_fit_records_written_before_a_field_was_added_still_match(tmp_path):
+    from trioman.toolkit.model_training import _same_fit
+
+    new = dataclasses.asdict(FitConfig(steps=3))
+    old = {k: v for k, v in new.items() if k != "image_size"}
+    assert _same_fit(old, new) and not _same_fit(old, dict(new, image_size=32))
