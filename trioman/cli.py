@@ -38,6 +38,7 @@ COMMANDS = (
     Command("train-examiner", "trioman.toolkit.examiner_command", "train the Examiner on a synthetic corpus", "train"),
     Command("animate", "trioman.runtime.animate", "animate an exported avatar with a motion, as an MP4 (no torch)"),
     Command("render", "trioman.runtime.render_command", "render one image of an exported avatar (no torch)"),
+    Command("augment", "trioman.runtime.augment_command", "pseudo-GT frames: Generator, Refiner, Examiner on an exported avatar (no torch)"),
     Command("inspect", "trioman.runtime.inspect", "validate a subject folder and print a summary"),
     Command("bench", "trioman.toolkit.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )

@@ -35,6 +35,8 @@ class TrainConfig:
     frames: str = "train"  # the frames trained on: "train" (the train split) or "all" (every frame)
     frame_stride: int = 1  # keep every frame_stride-th of those frames (a subset, for coarse-render corpora)
     random_background: bool = True
+    extra_frames: str | None = None  # a subject folder of pseudo-GT frames (trioman augment) sampled with the frames
+    extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
     checkpoint_every: int = 250
     keep_checkpoints: int = 2
     seed: int = 0
@@ -52,6 +54,11 @@ class TrainConfig:
             raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
         if not self.lr > 0:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
+        w = self.extra_weight
+        if isinstance(w, bool) or not (isinstance(w, (int, float)) and 0 <= w < float("inf")):
+            raise ValueError(f"extra_weight: must be a finite number >= 0, got {self.extra_weight!r}")
+        if self.extra_frames is not None and (not isinstance(self.extra_frames, str) or not self.extra_frames):
+            raise ValueError(f"extra_frames: expected a subject folder path or None, got {self.extra_frames!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

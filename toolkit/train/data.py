@@ -20,6 +20,7 @@ class FrameSet:
     trans: torch.Tensor  # [F, 3]
     K: torch.Tensor  # [F, 3, 3] for the (resized) images
     viewmat: torch.Tensor  # [F, 4, 4]
+    weights: np.ndarray | None = None  # [F] photometric loss weight per frame; None = 1 for every frame
 
     @property
     def height(self) -> int:
@@ -59,3 +60,16 @@ def load_frames(subject: Subject, split: str | None, scale: float = 1.0, stride:
         K=torch.from_numpy(K.astype(np.float32)),
         viewmat=torch.from_numpy(np.array(subject.viewmat[idx], dtype=np.float32)),
     )
+
+
+def join_frames(frames: FrameSet, extra: FrameSet, extra_weight: float = 1.0) -> FrameSet:
+    """``frames`` then ``extra`` (e.g. pseudo-GT frames of ``trioman augment``), the extra ones weighted by
+    ``extra_weight``. ``indices`` keep each frame's index in its own subject. Same image size required."""
+    if (extra.height, extra.width) != (frames.height, frames.width):
+        raise ValueError(f"extra_frames: images are {extra.width}x{extra.height} (W x H) after scaling, "
+                         f"but the subject's are {frames.width}x{frames.height}")
+    ones = np.ones(len(frames)) if frames.weights is None else frames.weights
+    weights = np.concatenate([ones, np.full(len(extra), float(extra_weight))])
+    cat = {name: torch.cat([getattr(frames, name), getattr(extra, name)])
+           for name in ("images", "masks", "poses", "trans", "K", "viewmat")}
+    return FrameSet(indices=np.concatenate([frames.indices, extra.indices]), weights=weights, **cat)

@@ -12,7 +12,7 @@ import torch
 from tqdm import tqdm
 
 from trioman import __version__
-from trioman.runtime.formats import load_subject
+from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.image_io import atomic_write_text
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import flush_denormals
@@ -20,7 +20,7 @@ from trioman.toolkit.metrics import psnr, ssim
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.config import TrainConfig
-from trioman.toolkit.train.data import FrameSet, load_frames
+from trioman.toolkit.train.data import FrameSet, join_frames, load_frames
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
 
@@ -75,6 +75,18 @@ def _prepare_run(run: Path, subject_path: Path, cfg: TrainConfig, resume: bool) 
     return cfg
 
 
+def _extra_subject(cfg: TrainConfig, subject: Subject) -> Subject:
+    """The subject folder of ``cfg.extra_frames``, checked against the training subject."""
+    extra = load_subject(cfg.extra_frames)
+    if (extra.width, extra.height) != (subject.width, subject.height):
+        raise ValueError(f"extra_frames: {cfg.extra_frames} has {extra.width}x{extra.height} (W x H) images, but the "
+                         f"subject {subject.root} has {subject.width}x{subject.height}")
+    if extra.body.skeleton.joint_names != subject.body.skeleton.joint_names:
+        raise ValueError(f"extra_frames: {cfg.extra_frames} has a body of {extra.num_joints} joints that differs from "
+                         f"the subject's ({subject.num_joints} joints); augment frames of this subject")
+    return extra
+
+
 def _trim_log(log: Path, step: int) -> None:
     """Keep the log lines up to ``step`` (a resumed run rewrites what came after its checkpoint)."""
     if not log.exists():
@@ -88,7 +100,7 @@ def _trim_log(log: Path, step: int) -> None:
 @flush_denormals()
 def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: bool = False, progress: bool = True,
           stop_after: int | None = None, lpips=None, on_checkpoint: Callable[[int, Path], None] | None = None) -> Path:
-    """Train an avatar on the subject's training frames into the folder ``run``.
+    """Train an avatar on the subject's training frames (plus ``cfg.extra_frames``) into the folder ``run``.
 
     ``stop_after`` ends the loop after that many steps of this call (to test interruption);
     ``on_checkpoint(step, path)`` is called after each checkpoint (benchmarks evaluate there).
@@ -97,8 +109,13 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     if not resume and (run / "config.json").exists():
         raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
     subject = load_subject(subject_path)
+    fresh = not (resume and (run / "config.json").exists())
+    extra = _extra_subject(cfg, subject) if fresh and cfg.extra_frames is not None else None  # before writing
     cfg = _prepare_run(run, subject_path, cfg, resume)
     frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
+    if cfg.extra_frames is not None:  # uniform sampling over the union of both frame sets
+        extra = extra if extra is not None else _extra_subject(cfg, subject)
+        frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
     model = GaussianAvatar(subject.body, cfg.avatar)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)
@@ -154,12 +171,13 @@ def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, frames: Frame
     gt = frames.images[i] + (1 - frames.masks[i])[..., None] * bg  # premultiplied GT over the same colour
     out = model(frames.poses[i], frames.trans[i])
     sets = [out.refined] + ([out.plain] if cfg.supervise_plain else [])
+    weight = 1.0 if frames.weights is None else float(frames.weights[i])  # pseudo-GT frames: cfg.extra_weight
     loss = torch.zeros(())
     pred = None
     for g in sets:
         img = render(g, frames.viewmat[i], frames.K[i], frames.width, frames.height, bg)
         pred = img if pred is None else pred
-        loss = loss + photometric(img, gt, cfg, lpips)
+        loss = loss + weight * photometric(img, gt, cfg, lpips)
     loss = loss + regularisers(model, out, cfg)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()

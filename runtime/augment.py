@@ -1,0 +1,554 @@
+"""Offline augmentation (paper 3.2.3-3.2.6): pseudo-GT frames for a subject, without torch.
+
+For each source frame T of a subject (default: its train split):
+
+    generate  the Generator draws ``per_frame`` candidates (pose + camera perturbation) with a seed
+              derived from (seed, T's index in the subject), so a resumed or limited run draws the
+              same candidates; the real frame I^T is read
+    render    the avatar at each candidate's pose and camera (numpy splat renderer, frame T's K, the
+              subject's size and background): the coarse frame I_c and its alpha
+    normal    the subject's body at the candidate's pose and camera: the normal map I_g (only when the
+              Refiner is conditioned on geometry)
+    refine    Refiner(I_c, reference I^T, normal I_g) -> I_r (all candidates in one batch)
+    examine   Examiner score of every I_r against I^T; the higher-scoring candidate is kept, and
+              dropped when its score < threshold. Without an Examiner every candidate is kept.
+    write     the kept frames' images and masks, then the frame's record (all atomic)
+
+The pseudo-GT mask is the avatar render's alpha A at the candidate's pose and camera, and the
+pseudo-GT image is the refined frame over the subject's background through that mask,
+A * I_r + (1 - A) * background, so image and mask agree as in any subject (the training loop
+composites images over random backgrounds with the mask). The output
+folder is a subject folder (docs/formats.md "Augmented frames") plus ``records/``, ``augment.json``
+and the score histogram ``scores.png``. A frame is done when its record exists: an interrupted run
+leaves only complete frames, and ``resume=True`` skips them and ends with the same files as an
+uninterrupted run (``subject.json``, ``frames.npz`` and ``augment.json`` are assembled from the
+records at the end; only the timings differ).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+import shutil
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+from trioman import __version__
+from trioman.runtime.formats import FormatError, load_avatar, load_subject
+from trioman.runtime.formats.avatar import AVATAR_JSON, sha256_file
+from trioman.runtime.formats.common import _write_npz
+from trioman.runtime.formats.subject import (
+    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, _check_frames, _check_meta,
+)
+from trioman.runtime.generator import GROUPS, GeneratorConfig, joint_groups, sample
+from trioman.runtime.image_io import atomic_path, atomic_write_bytes, atomic_write_text, write_png
+from trioman.runtime.normal_map import body_normal_map
+from trioman.runtime.render import rasterize
+
+__all__ = ["AUGMENT_JSON", "RECORDS_DIR", "HISTOGRAM_PNG", "STAGES", "augment", "frame_seed", "draw_histogram"]
+
+AUGMENT_FORMAT = "trioman-augment"
+AUGMENT_VERSION = 1
+AUGMENT_JSON = "augment.json"
+RECORDS_DIR = "records"
+HISTOGRAM_PNG = "scores.png"
+STAGES = ("generate", "render", "normal", "refine", "examine", "write")
+# What a resumed run must share with the run it continues (everything that decides the output bytes).
+_RESUME_KEYS = ("subject", "avatar", "refiner", "examiner", "seed", "per_frame", "threshold", "frames", "generator")
+
+
+# --------------------------------------------------------------------------------------------------
+# checks
+
+
+def _check_options(per_frame: Any, threshold: Any, seed: Any, frames: Any, limit: Any, examiner: Any,
+                   resume: bool, overwrite: bool) -> None:
+    def integer(v: Any) -> bool:
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+    if not integer(per_frame) or per_frame < 1:
+        raise ValueError(f"--per-frame: must be an integer >= 1, got {per_frame!r}")
+    if threshold is not None:
+        if isinstance(threshold, bool) or not isinstance(threshold, numbers.Real) or not 0.0 <= threshold <= 1.0:
+            raise ValueError(f"--threshold: must be a number in [0, 1], got {threshold!r}")
+        if examiner is None:
+            raise ValueError(f"--threshold: {threshold} needs an Examiner (--examiner); without one every candidate is kept")
+    if not integer(seed) or seed < 0:
+        raise ValueError(f"--seed: must be an integer >= 0, got {seed!r}")
+    if frames not in ("train", "all"):
+        raise ValueError(f"--frames: expected 'train' or 'all', got {frames!r}")
+    if limit is not None and (not integer(limit) or limit < 1):
+        raise ValueError(f"--limit: must be an integer >= 1, got {limit!r}")
+    if resume and overwrite:
+        raise ValueError("--resume and --overwrite: choose one (continue the run in --out, or replace it)")
+
+
+def _existing(path: Any, flag: str, kind: str) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{flag}: {kind} not found: {p}")
+    return p
+
+
+def _check_out(out: Path, resume: bool, overwrite: bool) -> bool:
+    """-> whether ``out`` holds earlier output (non-empty). Raises before any work when it may not be used."""
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"--out: {out} exists and is not a folder")
+    if not out.is_dir() or not any(out.iterdir()):
+        return False
+    is_augment = (out / AUGMENT_JSON).is_file()
+    if not (resume or overwrite):
+        raise FileExistsError(f"--out: {out} exists and is not empty (pass --resume to continue an interrupted run "
+                              f"there, --overwrite to replace it, or choose another --out)")
+    if not is_augment:
+        action = "resume" if resume else "replace"
+        raise FileExistsError(f"--out: {out} is not empty and holds no {AUGMENT_JSON}: not a `trioman augment` "
+                              f"output, refusing to {action} it")
+    return True
+
+
+def _check_joints(avatar: Any, subject: Any, avatar_path: Path) -> None:
+    a, s = avatar.skeleton.joint_names, subject.body.skeleton.joint_names
+    if len(a) != len(s):
+        raise ValueError(f"--avatar: {avatar_path} has {len(a)} joints, but the subject's body has {len(s)} joints "
+                         f"(the avatar must be trained on this subject's body)")
+    if a != s:
+        j = next(k for k in range(len(a)) if a[k] != s[k])
+        raise ValueError(f"--avatar: joint {j} is {a[j]!r} in {avatar_path}, but {s[j]!r} in the subject's body "
+                         f"(the avatar must be trained on this subject's body)")
+
+
+def frame_seed(seed: int, index: int) -> int:
+    """The Generator seed of source frame ``index`` (its index in the subject) for the run seed ``seed``."""
+    return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1, np.uint64)[0])
+
+
+# --------------------------------------------------------------------------------------------------
+# settings and provenance
+
+
+def _model_info(model: Any, path: Path) -> dict[str, Any]:
+    meta = dict(model.meta)
+    return {"path": str(path.resolve()), "sha256": sha256_file(path), "size": list(model.size),
+            "config_hash": meta.get("trioman.config_hash"), "precision": meta.get("trioman.precision"),
+            "kind": meta.get("trioman.kind"), "version": meta.get("trioman.version")}
+
+
+def _settings(subject: Any, avatar: Any, avatar_path: Path, refiner: Any, refiner_path: Path, examiner: Any,
+              examiner_path: Path | None, seed: int, per_frame: int, threshold: float | None, frames: str,
+              gen_cfg: GeneratorConfig) -> dict[str, Any]:
+    source = dict(avatar.meta.get("source", {}))
+    ref = _model_info(refiner, refiner_path)
+    ref["conditions"] = refiner.conditions
+    return {
+        "subject": {"path": str(Path(subject.root).resolve()),
+                    "frames_sha256": sha256_file(Path(subject.root) / FRAMES_NPZ)},
+        "avatar": {"path": str(avatar_path.resolve()), "avatar_json_sha256": sha256_file(avatar_path / AVATAR_JSON),
+                   "step": source.get("step"), "run": source.get("run"), "num_gaussians": avatar.num_gaussians},
+        "refiner": ref,
+        "examiner": None if examiner is None else _model_info(examiner, examiner_path),
+        "seed": int(seed),
+        "per_frame": int(per_frame),
+        "threshold": None if threshold is None else float(threshold),
+        "frames": frames,
+        "generator": json.loads(json.dumps(asdict(gen_cfg))),
+    }
+
+
+def _versions() -> dict[str, str]:
+    import onnxruntime
+
+    return {"trioman": __version__, "numpy": np.__version__, "opencv": cv2.__version__,
+            "onnxruntime": onnxruntime.__version__}
+
+
+def _check_resume(out: Path, settings: Mapping[str, Any]) -> None:
+    try:
+        old = json.loads((out / AUGMENT_JSON).read_text(encoding="utf-8"))["settings"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise FormatError(f"{out / AUGMENT_JSON}: unreadable settings of the earlier run ({err})") from None
+    for key in _RESUME_KEYS:
+        if old.get(key) != settings[key]:
+            raise ValueError(f"--resume: {key} differs from the run in {out} (was {old.get(key)!r}, now "
+                             f"{settings[key]!r}); use the same inputs, or --overwrite to start again")
+
+
+def _dump(obj: Any) -> str:
+    return json.dumps(obj, indent=2, allow_nan=False) + "\n"
+
+
+# --------------------------------------------------------------------------------------------------
+# records
+
+
+def _record_path(out: Path, name: str) -> Path:
+    return out / RECORDS_DIR / f"{name}.json"
+
+
+def _read_record(out: Path, name: str, index: int) -> dict[str, Any] | None:
+    """A finished frame's record, or None when the frame must be (re)done."""
+    path = _record_path(out, name)
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text(encoding="utf-8"))
+        ok = rec["version"] == AUGMENT_VERSION and rec["source"]["index"] == index
+        files = [out / IMAGES_DIR / f"{f['name']}.png" for f in rec["frames"]] + \
+                [out / MASKS_DIR / f"{f['name']}.png" for f in rec["frames"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return rec if ok and all(f.is_file() for f in files) else None
+
+
+def _group_norms(delta: np.ndarray, groups: np.ndarray) -> dict[str, float]:
+    """Frobenius norm of the pose change per joint group (radians)."""
+    return {g: float(np.linalg.norm(delta[groups == g])) for g in GROUPS if np.any(groups == g)}
+
+
+# --------------------------------------------------------------------------------------------------
+# the run
+
+
+def augment(
+    subject: str | os.PathLike,
+    avatar: str | os.PathLike,
+    refiner: str | os.PathLike,
+    out: str | os.PathLike,
+    examiner: str | os.PathLike | None = None,
+    *,
+    per_frame: int = 2,
+    threshold: float | None = None,
+    seed: int = 0,
+    frames: str = "train",
+    limit: int | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    generator: GeneratorConfig | None = None,
+    threads: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
+    optional Examiner (ONNX files) into the folder ``out`` (module doc). -> the augment.json content.
+
+    frames: source frames, "train" (the train split) or "all"; limit: the first ``limit`` of them.
+    threshold: drop the chosen candidate when its Examiner score is below it (needs an Examiner).
+    Every input is checked before any work; a bad one raises ValueError / FileNotFoundError /
+    FileExistsError / FormatError naming the option and the value.
+    """
+    from tqdm import tqdm
+
+    from trioman.runtime.models import ExaminerModel, RefinerModel
+
+    _check_options(per_frame, threshold, seed, frames, limit, examiner, resume, overwrite)
+    gen_cfg = generator if generator is not None else GeneratorConfig()
+    if not isinstance(gen_cfg, GeneratorConfig):
+        raise ValueError(f"generator: expected a GeneratorConfig, got {type(gen_cfg).__name__}")
+    subject_path = _existing(subject, "SUBJECT", "subject folder")
+    avatar_path = _existing(avatar, "--avatar", "avatar folder")
+    refiner_path = _existing(refiner, "--refiner", "Refiner ONNX file")
+    examiner_path = None if examiner is None else _existing(examiner, "--examiner", "Examiner ONNX file")
+    out = Path(out)
+    had_output = _check_out(out, resume, overwrite)
+
+    subj = load_subject(subject_path)
+    selection = subj.indices("train" if frames == "train" else None)
+    if len(selection) == 0:
+        raise ValueError(f"--frames: subject {subject_path} has no {frames!r} frames")
+    selection = selection[:limit] if limit is not None else selection
+    av = load_avatar(avatar_path)
+    _check_joints(av, subj, avatar_path)
+    ref_model = RefinerModel(refiner_path, threads=threads)
+    H, W = subj.height, subj.width
+    if tuple(ref_model.size) != (H, W):
+        h, w = ref_model.size
+        how = (f"trioman export onnx --refiner CKPT --size {H}" if H == W
+               else f"export_refiner_onnx(CKPT, PATH, size=({H}, {W}))")
+        raise ValueError(f"--refiner: {refiner_path} takes {h}x{w} (H x W) images, but the subject's images are "
+                         f"{H}x{W}; export the Refiner at the subject's size ({how})")
+    ex_model = None if examiner_path is None else ExaminerModel(examiner_path, threads=threads)
+    settings = _settings(subj, av, avatar_path, ref_model, refiner_path, ex_model, examiner_path, seed, per_frame,
+                         threshold, frames, gen_cfg)
+    if had_output and resume:
+        _check_resume(out, settings)
+
+    # ---- work starts here
+    if had_output and overwrite:
+        shutil.rmtree(out)
+    for d in (out, out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR):
+        d.mkdir(parents=True, exist_ok=True)
+    for name in (SUBJECT_JSON,):  # the folder is not a loadable subject while the run is going
+        (out / name).unlink(missing_ok=True)
+    header = {"format": AUGMENT_FORMAT, "version": AUGMENT_VERSION, "status": "running", "settings": settings,
+              "versions": _versions()}
+    atomic_write_text(out / AUGMENT_JSON, _dump(header))
+
+    groups = np.array(joint_groups(subj.body.skeleton))
+    conditions = ref_model.conditions
+    records: list[dict[str, Any]] = []
+    computed = 0
+    start = time.perf_counter()
+    bar = tqdm(selection.tolist(), desc="augment", unit="frame", disable=None if progress else True)
+    accepted = 0
+    for i in bar:
+        name = str(subj.frame_names[i])
+        rec = _read_record(out, name, i) if had_output else None
+        if rec is None:
+            rec = _augment_frame(subj, i, av, ref_model, ex_model, conditions, out, seed, per_frame, threshold,
+                                 gen_cfg, groups)
+            computed += 1
+        records.append(rec)
+        accepted += len(rec["frames"])
+        bar.set_postfix(kept=accepted)
+    bar.close()
+    seconds = time.perf_counter() - start
+
+    result = _finish(out, subj, records, settings, header, ex_model is not None, threshold, computed, seconds)
+    return result
+
+
+def _augment_frame(subj: Any, i: int, av: Any, refiner: Any, examiner: Any, conditions: str, out: Path, seed: int,
+                   per_frame: int, threshold: float | None, gen_cfg: GeneratorConfig, groups: np.ndarray) -> dict:
+    t = dict.fromkeys(STAGES, 0.0)
+    H, W = subj.height, subj.width
+    K, bg = np.array(subj.K[i], dtype=np.float64), subj.background.astype(np.float32)
+    name = str(subj.frame_names[i])
+
+    t0 = time.perf_counter()
+    fseed = frame_seed(seed, i)
+    cands = sample(subj.body.skeleton, subj.poses[i], subj.trans[i], subj.viewmat[i], fseed, per_frame, gen_cfg)
+    real = subj.image(i)
+    t1 = time.perf_counter()
+    t["generate"] = t1 - t0
+
+    coarse, alpha = [], []
+    for c in cands:
+        r = rasterize(*av.gaussians(c.pose, c.trans), c.viewmat, K, W, H, background=bg)
+        coarse.append(np.clip(r.rgb, 0.0, 1.0))
+        alpha.append(np.clip(r.alpha, 0.0, 1.0))
+    coarse_b = np.stack(coarse).astype(np.float32)
+    t2 = time.perf_counter()
+    t["render"] = t2 - t1
+
+    normal_b = None
+    if conditions == "tex+geo":
+        normal_b = np.stack([body_normal_map(subj.body, c.pose, c.trans, c.viewmat, K, W, H).rgb for c in cands])
+    t3 = time.perf_counter()
+    t["normal"] = t3 - t2
+
+    reference_b = None if conditions == "none" else np.ascontiguousarray(np.broadcast_to(real, coarse_b.shape))
+    refined = np.asarray(refiner.refine(coarse_b, reference=reference_b, normal=normal_b), dtype=np.float32)
+    if refined.shape != coarse_b.shape:
+        raise FormatError(f"refiner: output shape {list(refined.shape)}, expected {list(coarse_b.shape)}")
+    refined = np.clip(refined, 0.0, 1.0)
+    t4 = time.perf_counter()
+    t["refine"] = t4 - t3
+
+    scores = chosen = None
+    if examiner is not None:
+        choice = examiner.choose(refined, real)
+        scores = [float(s) for s in np.asarray(choice.scores, dtype=np.float64)]
+        chosen = int(choice.index)
+        kept_ids = [chosen] if threshold is None or scores[chosen] >= threshold else []
+    else:
+        kept_ids = list(range(per_frame))
+    t5 = time.perf_counter()
+    t["examine"] = t5 - t4
+
+    out_frames, candidates = [], []
+    for k, c in enumerate(cands):
+        fname = f"{name}_c{k}"
+        if k in kept_ids:
+            a = alpha[k][..., None]  # the image shows the background where the mask is 0 (subject format)
+            write_png(out / IMAGES_DIR / f"{fname}.png", refined[k] * a + (1.0 - a) * bg)
+            write_png(out / MASKS_DIR / f"{fname}.png", alpha[k])
+            out_frames.append({"name": fname, "candidate": k, "pose": c.pose.tolist(), "trans": c.trans.tolist(),
+                               "viewmat": c.viewmat.tolist(), "K": K.tolist()})
+        if examiner is None:
+            status = "kept"
+        elif k != chosen:
+            status = "not_chosen"
+        else:
+            status = "accepted" if kept_ids else "rejected"
+        candidates.append({
+            "candidate": k, "status": status, "score": None if scores is None else scores[k],
+            "frame": fname if k in kept_ids else None,
+            "pose_delta_norm": _group_norms(c.delta_pose, groups),
+            "camera": {"azimuth": c.camera.azimuth, "elevation": c.camera.elevation,
+                       "log_distance": c.camera.log_distance},
+        })
+    rec = {
+        "version": AUGMENT_VERSION,
+        "source": {"index": int(i), "name": name, "sequence": str(subj.sequence[i])},
+        "seed": fseed,
+        "chosen": chosen,
+        "kept": bool(kept_ids),
+        "candidates": candidates,
+        "frames": out_frames,
+        "seconds": t,
+    }
+    t["write"] = time.perf_counter() - t5  # images and masks; the record's own write is not counted
+    atomic_write_text(_record_path(out, name), _dump(rec))
+    return rec
+
+
+# --------------------------------------------------------------------------------------------------
+# assembly
+
+
+def _stats(values: list[float]) -> dict[str, Any]:
+    if not values:
+        return {"count": 0, "mean": None, "min": None, "max": None}
+    a = np.asarray(values, dtype=np.float64)
+    return {"count": int(a.size), "mean": float(a.mean()), "min": float(a.min()), "max": float(a.max())}
+
+
+def _write_subject(out: Path, subj: Any, frames: list[dict[str, Any]], records: list[dict[str, Any]],
+                   settings: Mapping[str, Any]) -> None:
+    """frames.npz, body.npz (the source's bytes) and subject.json of the accepted frames, each atomic."""
+    seqs = [str(subj.sequence[r["source"]["index"]]) for r in records for _ in r["frames"]]
+    meta = {
+        "format": SUBJECT_FORMAT, "version": SUBJECT_VERSION, "body_model": subj.body_model, "units": "m",
+        "up_axis": "z", "width": subj.width, "height": subj.height, "num_frames": len(frames),
+        "background": [float(c) for c in subj.meta["background"]],
+        "phenotype": dict(subj.meta.get("phenotype", {})),
+        "generator": {"tool": "trioman augment", "version": __version__, "source_subject": settings["subject"]["path"],
+                      "avatar": settings["avatar"]["path"], "seed": settings["seed"],
+                      "per_frame": settings["per_frame"], "threshold": settings["threshold"],
+                      "examiner": settings["examiner"] is not None, "mask": "avatar render alpha"},
+        "sequences": list(dict.fromkeys(seqs)),
+    }
+    where = out / SUBJECT_JSON
+    _check_meta(meta, where)
+    arrays = {
+        "poses": np.array([f["pose"] for f in frames], dtype=np.float32),
+        "trans": np.array([f["trans"] for f in frames], dtype=np.float32),
+        "K": np.array([f["K"] for f in frames], dtype=np.float32),
+        "viewmat": np.array([f["viewmat"] for f in frames], dtype=np.float32),
+        "split": np.array(["train"] * len(frames), dtype=np.str_),
+        "sequence": np.array(seqs, dtype=np.str_),
+        "frame_names": np.array([f["name"] for f in frames], dtype=np.str_),
+    }
+    arrays = _check_frames(arrays, out / FRAMES_NPZ, len(frames), subj.num_joints, meta["sequences"])
+    atomic_write_bytes(out / BODY_NPZ, (Path(subj.root) / BODY_NPZ).read_bytes())
+    with atomic_path(out / FRAMES_NPZ) as tmp:
+        _write_npz(tmp, arrays)
+    atomic_write_text(where, _dump(meta))  # last: a folder with subject.json is a complete subject
+
+
+def _finish(out: Path, subj: Any, records: list[dict[str, Any]], settings: dict[str, Any], header: dict[str, Any],
+            with_examiner: bool, threshold: float | None, computed: int, seconds: float) -> dict[str, Any]:
+    frames = [f for r in records for f in r["frames"]]
+    candidates = [c for r in records for c in r["candidates"]]
+    by_status: dict[str, list[float]] = {s: [c["score"] for c in candidates if c["status"] == s]
+                                         for s in ("accepted", "rejected", "not_chosen")}
+    summary: dict[str, Any] = {
+        "source_frames": len(records),
+        "candidates": len(candidates),
+        "frames_written": len(frames),
+        "accepted": len(frames),
+        "rejected": sum(1 for r in records if not r["kept"]),
+        "not_chosen": len(by_status["not_chosen"]),
+        "scores": _stats([c["score"] for c in candidates if c["score"] is not None]),
+        "chosen_scores": _stats(by_status["accepted"] + by_status["rejected"]),
+    }
+    if frames:
+        _write_subject(out, subj, frames, records, settings)
+        summary["subject_written"] = True
+        summary["note"] = f"{len(frames)} pseudo-GT frames written as a subject (this folder)"
+    else:
+        for name in (SUBJECT_JSON, FRAMES_NPZ, BODY_NPZ):
+            (out / name).unlink(missing_ok=True)
+        summary["subject_written"] = False
+        summary["note"] = "0 accepted: no pseudo-GT subject written (a subject needs at least one frame)"
+    hist = out / HISTOGRAM_PNG
+    if with_examiner:
+        draw_histogram(by_status, threshold, hist)
+        summary["histogram"] = HISTOGRAM_PNG  # relative to the output folder
+    else:
+        hist.unlink(missing_ok=True)
+        summary["histogram"] = None
+    n = max(len(records), 1)
+    timing = {
+        "ms_per_source_frame": {s: 1000.0 * sum(r["seconds"][s] for r in records) / n for s in STAGES},
+        "frames_computed": computed,
+        "frames_resumed": len(records) - computed,
+        "seconds_this_call": seconds,
+    }
+    timing["ms_per_source_frame"]["total"] = sum(timing["ms_per_source_frame"].values())
+    result = dict(header, status="complete", summary=summary, timing=timing)
+    atomic_write_text(out / AUGMENT_JSON, _dump(result))
+    return result
+
+
+# --------------------------------------------------------------------------------------------------
+# the histogram (OpenCV; no matplotlib in the runtime)
+
+_COLORS = {"accepted": (46, 160, 67), "rejected": (214, 39, 40), "not_chosen": (170, 170, 170)}  # RGB
+_LABELS = {"accepted": "accepted", "rejected": "rejected (below threshold)", "not_chosen": "not chosen"}
+
+
+def draw_histogram(scores: Mapping[str, list[float]], threshold: float | None, path: str | os.PathLike,
+                   bins: int = 20, size: tuple[int, int] = (640, 400)) -> Path:
+    """Stacked histogram of Examiner scores in [0, 1] by status (accepted / rejected / not chosen), the
+    threshold as a vertical line; an 8-bit RGB PNG written atomically at ``path``."""
+    W, H = size
+    img = np.full((H, W, 3), 255, np.uint8)
+    left, right, top, bottom = 56, 20, 70, 48
+    pw, ph = W - left - right, H - top - bottom
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    counts = {k: np.histogram(np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0), bins=edges)[0]
+              for k, v in scores.items() if k in _COLORS}
+    total = sum(counts.values()) if counts else np.zeros(bins, int)
+    ymax = max(int(np.max(total)) if np.size(total) else 0, 1)
+    font, black, grey = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0), (200, 200, 200)
+
+    def x_of(v: float) -> int:
+        return left + int(round(v * pw))
+
+    def y_of(c: float) -> int:
+        return top + ph - int(round(c / ymax * ph))
+
+    for frac in (0.25, 0.5, 0.75, 1.0):  # grid
+        cv2.line(img, (left, y_of(frac * ymax)), (left + pw, y_of(frac * ymax)), grey, 1)
+    for b in range(bins):
+        base = 0
+        for k in ("accepted", "rejected", "not_chosen"):
+            c = int(counts[k][b]) if k in counts else 0
+            if c:
+                cv2.rectangle(img, (x_of(edges[b]) + 1, y_of(base + c)), (x_of(edges[b + 1]) - 1, y_of(base) - 1),
+                              _COLORS[k], -1)
+                base += c
+    cv2.line(img, (left, top + ph), (left + pw, top + ph), black, 1)  # axes
+    cv2.line(img, (left, top), (left, top + ph), black, 1)
+    for v in (0.0, 0.25, 0.5, 0.75, 1.0):
+        cv2.line(img, (x_of(v), top + ph), (x_of(v), top + ph + 4), black, 1)
+        cv2.putText(img, f"{v:g}", (x_of(v) - 10, top + ph + 18), font, 0.4, black, 1, cv2.LINE_AA)
+    for c in sorted({0, ymax // 2, ymax}):
+        cv2.putText(img, str(c), (left - 8 - 8 * len(str(c)), y_of(c) + 4), font, 0.4, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "Examiner score", (left + pw // 2 - 50, H - 12), font, 0.45, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "candidates", (4, top - 10), font, 0.4, black, 1, cv2.LINE_AA)
+    if threshold is not None:
+        x = x_of(float(threshold))
+        for y in range(top, top + ph, 8):  # dashed
+            cv2.line(img, (x, y), (x, min(y + 4, top + ph)), (31, 119, 180), 2)
+        cv2.putText(img, f"threshold {threshold:.3g}", (min(x + 4, W - 110), top + 12), font, 0.4, (31, 119, 180), 1,
+                    cv2.LINE_AA)
+    n_all = sum(len(v) for v in scores.values())
+    cv2.putText(img, f"Examiner scores of {n_all} refined candidates", (8, 20), font, 0.5, black, 1, cv2.LINE_AA)
+    x = 8
+    for k in ("accepted", "rejected", "not_chosen"):
+        n = len(scores.get(k, []))
+        cv2.rectangle(img, (x, 32), (x + 12, 44), _COLORS[k], -1)
+        label = f"{_LABELS[k]} {n}"
+        cv2.putText(img, label, (x + 16, 43), font, 0.4, black, 1, cv2.LINE_AA)
+        x += 16 + cv2.getTextSize(label, font, 0.4, 1)[0][0] + 16
+    path = Path(path)
+    write_png(path, img)
+    return path

@@ -1,0 +1,62 @@
+"""``trioman augment SUBJECT --avatar A --refiner R.onnx [--examiner E.onnx] --out DIR``: pseudo-GT frames, no torch.
+
+Generator -> coarse render -> body normal map -> Refiner -> Examiner (keep the better of the
+candidates, drop it below --threshold), per source frame; see trioman.runtime.augment and
+docs/formats.md "Augmented frames". Train on the result with ``trioman train SUBJECT --extra-frames DIR``.
+
+Module contract (trioman/cli.py): standard-library imports only at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("subject", metavar="SUBJECT", help="subject folder (docs/formats.md)")
+    parser.add_argument("--avatar", required=True, help="avatar folder of this subject (trioman export avatar)")
+    parser.add_argument("--refiner", required=True, help="Refiner ONNX file, exported at the subject's image size")
+    parser.add_argument("--examiner", default=None,
+                        help="Examiner ONNX file; without it every candidate is kept (one frame per candidate)")
+    parser.add_argument("--out", required=True, help="output folder: a subject of pseudo-GT frames + records")
+    parser.add_argument("--per-frame", type=int, default=2, help="Generator candidates per source frame (default 2)")
+    parser.add_argument("--threshold", type=float, default=None,
+                        help="drop the chosen candidate when its Examiner score is below this, in [0, 1]")
+    parser.add_argument("--seed", type=int, default=0, help="run seed; each frame's seed derives from it (default 0)")
+    parser.add_argument("--frames", choices=("train", "all"), default="train",
+                        help="source frames: the train split or all frames (default train)")
+    parser.add_argument("--limit", type=int, default=None, help="use only the first N source frames (quick runs)")
+    parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: its own)")
+    parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from trioman.runtime.augment import AUGMENT_JSON, RECORDS_DIR, augment
+
+    r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
+                threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
+                overwrite=args.overwrite, threads=args.threads, progress=not args.quiet)
+    s, t = r["summary"], r["timing"]
+    thr = "" if args.threshold is None else f" (threshold {args.threshold:g})"
+    if args.examiner is None:
+        print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates, all kept (no --examiner)")
+    else:
+        sc = s["chosen_scores"]
+        print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates: {s['accepted']} accepted, "
+              f"{s['rejected']} rejected{thr}; chosen scores mean {sc['mean']:.3f} [{sc['min']:.3f}, {sc['max']:.3f}]")
+    ms = t["ms_per_source_frame"]
+    print("augment: ms per source frame: " + ", ".join(f"{k} {v:.1f}" for k, v in ms.items())
+          + (f" ({t['frames_resumed']} frames resumed)" if t["frames_resumed"] else ""))
+    out = Path(args.out)
+    if s["subject_written"]:
+        print(f"augment: pseudo-GT subject {out} ({s['frames_written']} frames); "
+              f"train with: trioman train {args.subject} --extra-frames {out} --out RUN")
+    else:
+        print(f"augment: {s['note']}")
+    print(f"augment: records {out / RECORDS_DIR}, report {out / AUGMENT_JSON}"
+          + (f", score histogram {out / s['histogram']}" if s["histogram"] else ""))
+    return 0

@@ -1,0 +1,306 @@
+"""``trioman augment``: Generator -> coarse render -> normal map -> Refiner -> Examiner, end to end on a tiny
+subject, a tiny exported avatar and tiny exported ONNX models; records, summary, threshold, determinism,
+resume after an interruption, refusals and bad inputs; a run without torch."""
+
+import json
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnx")
+
+import trioman.runtime.augment as augment_mod  # noqa: E402
+from tests.conftest import run_python  # noqa: E402
+from tests.export.test_avatar import tiny_run, trained_like  # noqa: E402,F401 (fixture)
+from trioman.cli import main  # noqa: E402
+from trioman.runtime.augment import AUGMENT_JSON, HISTOGRAM_PNG, STAGES, augment, frame_seed  # noqa: E402
+from trioman.runtime.formats import FormatError, load_avatar, load_subject  # noqa: E402
+from trioman.runtime.formats.avatar import sha256_file  # noqa: E402
+from trioman.runtime.generator import GROUPS, sample  # noqa: E402
+from trioman.runtime.image_io import png_header, read_png, to_uint8  # noqa: E402
+from trioman.runtime.models import ExaminerModel, RefinerModel  # noqa: E402
+from trioman.runtime.normal_map import body_normal_map  # noqa: E402
+from trioman.runtime.render import rasterize  # noqa: E402
+
+LIMIT = 4  # source frames of the main runs (--frames all: the tiny subject has 2 train + 4 test frames)
+
+
+@pytest.fixture(scope="module")
+def inputs(tiny_run, tmp_path_factory):  # noqa: F811
+    from tests.toolkit.avatar.test_model import SMALL
+    from tests.toolkit.examiner.helpers import TINY
+    from tests.toolkit.refiner.helpers import open_zero_inits, tiny_config
+    from trioman.export.avatar import export_model
+    from trioman.export.onnx_models import export_examiner_onnx, export_refiner_onnx
+    from trioman.toolkit.avatar.model import AvatarConfig
+    from trioman.toolkit.examiner import create_examiner
+    from trioman.toolkit.refiner import create_refiner
+
+    root = tmp_path_factory.mktemp("augment")
+    avatar = root / "avatar"
+    assert main(["export", "avatar", str(tiny_run), "--out", str(avatar)]) == 0
+    subject = Path(load_avatar(avatar).meta["source"]["subject"])
+    models = {}
+    for name, conditions, size in (("refiner", "tex+geo", 32), ("refiner_none", "none", 32), ("refiner16", "tex+geo", 16)):
+        model = open_zero_inits(create_refiner(tiny_config(conditions=conditions)), std=0.2)
+        export_refiner_onnx(model, root / f"{name}.onnx", size=size, gate_frames=2)
+        models[name] = root / f"{name}.onnx"
+    torch.manual_seed(0)
+    ex = create_examiner(TINY)
+    with torch.no_grad():  # spread the scores away from 0.5
+        for p in ex.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    export_examiner_onnx(ex, root / "examiner.onnx", gate_frames=2)
+    export_model(trained_like(AvatarConfig(**SMALL)), root / "other_avatar", body_model="test")  # a 4-joint body
+    return SimpleNamespace(root=root, subject=subject, avatar=avatar, examiner=root / "examiner.onnx",
+                           other_avatar=root / "other_avatar", **models)
+
+
+def run(inputs, out, examiner=True, **kw):
+    kw = {"frames": "all", "limit": LIMIT, "seed": 7, "progress": False, **kw}
+    return augment(inputs.subject, inputs.avatar, inputs.refiner, out, inputs.examiner if examiner else None, **kw)
+
+
+def snapshot(out: Path) -> dict:
+    """Every file's bytes; augment.json and the records as JSON without their timings."""
+    files = {}
+    for p in sorted(out.rglob("*")):
+        if p.is_file():
+            rel = p.relative_to(out).as_posix()
+            if rel == AUGMENT_JSON or rel.startswith("records/"):
+                d = json.loads(p.read_text())
+                d.pop("timing" if rel == AUGMENT_JSON else "seconds")
+                files[rel] = d
+            else:
+                files[rel] = p.read_bytes()
+    return files
+
+
+def records(out: Path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in sorted((out / "records").glob("*.json"))]
+
+
+@pytest.fixture(scope="module")
+def straight(inputs):
+    out = inputs.root / "straight"
+    result = run(inputs, out)
+    return SimpleNamespace(out=out, result=result, files=snapshot(out))
+
+
+# --------------------------------------------------------------------------------------------------
+
+
+def test_with_an_examiner_the_better_candidate_becomes_a_pseudo_gt_frame(inputs, straight):
+    out, src = straight.out, load_subject(inputs.subject)
+    aug = load_subject(out)
+    recs = records(out)
+    assert len(recs) == aug.num_frames == LIMIT
+    assert set(aug.split.tolist()) == {"train"} and (aug.width, aug.height) == (src.width, src.height)
+    assert (out / "body.npz").read_bytes() == (inputs.subject / "body.npz").read_bytes()
+    assert aug.meta["background"] == src.meta["background"] and aug.meta["generator"]["tool"] == "trioman augment"
+    for k, rec in enumerate(recs):
+        i = rec["source"]["index"]
+        scores = [c["score"] for c in rec["candidates"]]
+        assert len(scores) == 2 and rec["chosen"] == int(np.argmax(scores)) and rec["kept"]
+        assert [c["status"] for c in rec["candidates"]] == ["accepted" if j == rec["chosen"] else "not_chosen" for j in range(2)]
+        assert aug.frame_names[k] == f"{src.frame_names[i]}_c{rec['chosen']}" and aug.sequence[k] == src.sequence[i]
+        assert rec["seed"] == frame_seed(7, i)
+        for c in rec["candidates"]:
+            assert set(c["camera"]) == {"azimuth", "elevation", "log_distance"}
+            assert set(c["pose_delta_norm"]) <= set(GROUPS) and c["pose_delta_norm"]["root"] == 0.0
+        np.testing.assert_array_equal(aug.K[k], src.K[i])
+
+    # Frame 0 again by hand: the candidate from the recorded seed, its render alpha as the mask, the
+    # Refiner fed the real frame and the normal map, the Examiner's scores against the real frame.
+    rec, i = recs[0], recs[0]["source"]["index"]
+    av = load_avatar(inputs.avatar)
+    cands = sample(src.body.skeleton, src.poses[i], src.trans[i], src.viewmat[i], rec["seed"], 2)
+    c = cands[rec["chosen"]]
+    np.testing.assert_array_equal(aug.poses[0], c.pose.astype(np.float32))
+    np.testing.assert_array_equal(aug.viewmat[0], c.viewmat.astype(np.float32))
+    K, W, H = np.array(src.K[i], np.float64), src.width, src.height
+    renders = [rasterize(*av.gaussians(x.pose, x.trans), x.viewmat, K, W, H, background=src.background) for x in cands]
+    np.testing.assert_array_equal(to_uint8(read_png(aug.mask_path(0))), to_uint8(np.clip(renders[rec["chosen"]].alpha, 0, 1)))
+    real = src.image(i)
+    normals = np.stack([body_normal_map(src.body, x.pose, x.trans, x.viewmat, K, W, H).rgb for x in cands])
+    refined = RefinerModel(inputs.refiner).refine(np.stack([np.clip(r.rgb, 0, 1) for r in renders]),
+                                                   np.stack([real, real]), normals)
+    a = np.clip(renders[rec["chosen"]].alpha, 0, 1)[..., None]  # the refined frame through the render alpha
+    np.testing.assert_array_equal(to_uint8(read_png(aug.image_path(0))),
+                                  to_uint8(refined[rec["chosen"]] * a + (1 - a) * src.background))
+    np.testing.assert_allclose([c["score"] for c in rec["candidates"]], ExaminerModel(inputs.examiner).score(refined, real),
+                               atol=1e-6)
+
+    meta = json.loads((out / AUGMENT_JSON).read_text())
+    s, st = meta["summary"], meta["settings"]
+    assert meta["status"] == "complete" and meta["versions"]["trioman"]
+    counts = (s["source_frames"], s["candidates"], s["accepted"], s["rejected"], s["not_chosen"])
+    assert counts == (LIMIT, 2 * LIMIT, LIMIT, 0, LIMIT)
+    all_scores = [c["score"] for r in recs for c in r["candidates"]]
+    assert s["scores"]["count"] == 2 * LIMIT and s["scores"]["max"] == max(all_scores) and s["scores"]["min"] == min(all_scores)
+    assert s["subject_written"] and s["histogram"] == HISTOGRAM_PNG and png_header(out / HISTOGRAM_PNG) == (640, 400, 3)
+    assert st["avatar"]["step"] == 3 and st["avatar"]["avatar_json_sha256"] == sha256_file(inputs.avatar / "avatar.json")
+    ref_meta = RefinerModel(inputs.refiner).meta
+    assert st["refiner"]["config_hash"] == ref_meta["trioman.config_hash"] and st["refiner"]["precision"] == "fp32"
+    assert st["examiner"]["sha256"] == sha256_file(inputs.examiner)
+    assert (st["seed"], st["per_frame"], st["threshold"], st["frames"]) == (7, 2, None, "all")
+    assert set(meta["timing"]["ms_per_source_frame"]) == set(STAGES) | {"total"}
+    assert all(v >= 0 for v in meta["timing"]["ms_per_source_frame"].values())
+
+
+def test_threshold_rejects_low_scores_and_can_reject_everything(inputs, straight, tmp_path, capsys):
+    chosen = sorted(r["candidates"][r["chosen"]]["score"] for r in records(straight.out))
+    thr = 0.5 * (chosen[1] + chosen[2])  # two above, two below
+    run(inputs, tmp_path / "t", threshold=thr)
+    recs = records(tmp_path / "t")
+    assert [r["kept"] for r in recs] == [r["candidates"][r["chosen"]]["score"] >= thr for r in recs]
+    assert sum(r["kept"] for r in recs) == 2 and load_subject(tmp_path / "t").num_frames == 2
+    assert {c["status"] for r in recs for c in r["candidates"]} == {"accepted", "rejected", "not_chosen"}
+    s = json.loads((tmp_path / "t" / AUGMENT_JSON).read_text())["summary"]
+    assert (s["accepted"], s["rejected"]) == (2, 2)
+
+    assert max(c["score"] for r in recs for c in r["candidates"]) < 1.0
+    out = tmp_path / "none"
+    assert main(["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
+                 "--examiner", str(inputs.examiner), "--out", str(out), "--threshold", "1", "--frames", "all",
+                 "--limit", "2", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "0 accepted, 2 rejected (threshold 1)" in printed and "no pseudo-GT subject written" in printed
+    assert str(out / AUGMENT_JSON) in printed and str(out / HISTOGRAM_PNG) in printed
+    s = json.loads((out / AUGMENT_JSON).read_text())["summary"]
+    assert (s["accepted"], s["rejected"], s["subject_written"]) == (0, 2, False) and "0 accepted" in s["note"]
+    assert not (out / "subject.json").exists() and not (out / "frames.npz").exists() and (out / HISTOGRAM_PNG).is_file()
+    assert not list((out / "images").iterdir()) and len(records(out)) == 2
+    with pytest.raises(FormatError, match="subject.json"):
+        load_subject(out)
+
+
+def test_without_an_examiner_every_candidate_is_kept(inputs, tmp_path):
+    out = tmp_path / "all"
+    r = run(inputs, out, examiner=False, per_frame=3, limit=2)
+    aug = load_subject(out)
+    names = [str(n) for n in load_subject(inputs.subject).frame_names[:2]]
+    assert aug.frame_names.tolist() == [f"{n}_c{k}" for n in names for k in range(3)]
+    assert r["summary"]["accepted"] == 6 and r["summary"]["histogram"] is None and not (out / HISTOGRAM_PNG).exists()
+    assert r["settings"]["examiner"] is None and r["summary"]["scores"]["count"] == 0
+    assert {c["status"] for rec in records(out) for c in rec["candidates"]} == {"kept"}
+    assert all(c["score"] is None for rec in records(out) for c in rec["candidates"])
+
+
+def test_a_refiner_without_conditions_gets_neither_reference_nor_normal_map(inputs, tmp_path):
+    r = augment(inputs.subject, inputs.avatar, inputs.refiner_none, tmp_path / "n", limit=1, progress=False)
+    assert r["settings"]["refiner"]["conditions"] == "none" and r["timing"]["ms_per_source_frame"]["normal"] < 1.0
+    assert load_subject(tmp_path / "n").num_frames == 2
+
+
+def test_same_seed_same_files_and_resume_after_an_interruption(inputs, straight, tmp_path, monkeypatch):
+    run(inputs, tmp_path / "again")
+    assert snapshot(tmp_path / "again") == straight.files
+    run(inputs, tmp_path / "seed8", seed=8, limit=1)
+    assert (tmp_path / "seed8" / "frames.npz").read_bytes() != (tmp_path / "again" / "frames.npz").read_bytes()
+
+    # Interrupt while writing the third frame: its image is written, its mask and record are not.
+    calls = []
+    real_write = augment_mod.write_png
+
+    def flaky(path, img):
+        calls.append(path)
+        if len(calls) == 6:
+            raise KeyboardInterrupt
+        real_write(path, img)
+
+    monkeypatch.setattr(augment_mod, "write_png", flaky)
+    out = tmp_path / "broken"
+    with pytest.raises(KeyboardInterrupt):
+        run(inputs, out)
+    monkeypatch.setattr(augment_mod, "write_png", real_write)
+    assert len(records(out)) == 2 and len(list((out / "images").iterdir())) == 3 and len(list((out / "masks").iterdir())) == 2
+    assert not (out / "subject.json").exists()
+    with pytest.raises(FormatError):
+        load_subject(out)
+    r = run(inputs, out, resume=True)
+    assert r["timing"]["frames_resumed"] == 2 and r["timing"]["frames_computed"] == LIMIT - 2
+    assert snapshot(out) == straight.files  # byte-identical images, masks, frames.npz, subject.json, histogram
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name]
+    r = run(inputs, out, resume=True)  # a finished run resumes to the same files
+    assert r["timing"]["frames_resumed"] == LIMIT and snapshot(out) == straight.files
+
+
+def test_refuses_a_non_empty_out_and_a_resume_with_other_settings(inputs, tmp_path):
+    stray = tmp_path / "stray"
+    stray.mkdir()
+    (stray / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match=r"not empty \(pass --resume .* --overwrite"):
+        run(inputs, stray, limit=1)
+    for flag in ("resume", "overwrite"):
+        with pytest.raises(FileExistsError, match="holds no augment.json"):
+            run(inputs, stray, limit=1, **{flag: True})
+    assert (stray / "notes.txt").read_text() == "mine" and len(list(stray.iterdir())) == 1
+
+    out = tmp_path / "done"
+    run(inputs, out, limit=1)
+    with pytest.raises(FileExistsError, match="not empty"):
+        run(inputs, out, limit=1)
+    with pytest.raises(ValueError, match=r"--resume: seed differs from the run in .* \(was 7, now 9\)"):
+        run(inputs, out, limit=1, seed=9, resume=True)
+    with pytest.raises(ValueError, match="--resume: per_frame differs"):
+        run(inputs, out, limit=1, per_frame=3, resume=True)
+    r = run(inputs, out, limit=1, seed=9, overwrite=True, examiner=False)
+    assert r["settings"]["seed"] == 9 and load_subject(out).num_frames == 2 and not (out / HISTOGRAM_PNG).exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--per-frame", "0"], "--per-frame: must be an integer >= 1, got 0"),
+    (["--threshold", "1.5"], "--threshold: must be a number in [0, 1], got 1.5"),
+    (["--threshold", "-0.1"], "--threshold: must be a number in [0, 1], got -0.1"),
+    (["--limit", "0"], "--limit: must be an integer >= 1, got 0"),
+    (["--seed", "-1"], "--seed: must be an integer >= 0, got -1"),
+    (["--resume", "--overwrite"], "--resume and --overwrite: choose one"),
+    (["--refiner", "{root}/missing.onnx"], "--refiner: Refiner ONNX file not found: {root}/missing.onnx"),
+    (["--examiner", "{root}/missing.onnx"], "--examiner: Examiner ONNX file not found: {root}/missing.onnx"),
+    (["--refiner", "{root}/refiner16.onnx"], "refiner16.onnx takes 16x16 (H x W) images, but the subject's images are 32x32; "
+                                             "export the Refiner at the subject's size (trioman export onnx --refiner CKPT --size 32)"),
+    (["--refiner", "{root}/examiner.onnx"], "metadata 'trioman.kind': expected 'refiner', got 'examiner'"),
+    (["--avatar", "{root}/other_avatar"], "other_avatar has 4 joints, but the subject's body has 104 joints"),
+], ids=["per-frame", "threshold-high", "threshold-low", "limit", "seed", "resume-overwrite", "refiner-missing",
+        "examiner-missing", "refiner-size", "refiner-kind", "joints"])
+def test_bad_inputs_fail_before_any_work(inputs, tmp_path, capsys, args, message):
+    out = tmp_path / "out"
+    base = {"--avatar": str(inputs.avatar), "--refiner": str(inputs.refiner), "--examiner": str(inputs.examiner),
+            "--out": str(out)}
+    args = [a.replace("{root}", str(inputs.root)) for a in args]
+    for flag in list(base):
+        if flag in args:
+            base[flag] = args.pop(args.index(flag) + 1)
+            args.remove(flag)
+    argv = ["augment", str(inputs.subject), "--quiet"] + [x for kv in base.items() for x in kv] + args
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert message.replace("{root}", str(inputs.root)) in err, err
+    assert not out.exists()
+
+
+def test_threshold_without_an_examiner_is_refused(inputs, tmp_path):
+    with pytest.raises(ValueError, match=r"--threshold: 0.5 needs an Examiner \(--examiner\)"):
+        run(inputs, tmp_path / "o", examiner=False, threshold=0.5)
+    assert not (tmp_path / "o").exists()
+
+
+def test_augment_runs_without_torch(inputs, tmp_path):
+    out = tmp_path / "notorch"
+    proc = run_python(f"""
+        import sys
+        from trioman.cli import main
+        assert main(['augment', {str(inputs.subject)!r}, '--avatar', {str(inputs.avatar)!r},
+                     '--refiner', {str(inputs.refiner)!r}, '--examiner', {str(inputs.examiner)!r},
+                     '--out', {str(out)!r}, '--limit', '1', '--quiet']) == 0
+        for name in ('torch', 'onnx', 'matplotlib'):
+            assert sys.modules.get(name) is None, name
+    """, block_torch=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "1 accepted, 0 rejected" in proc.stdout and "ms per source frame" in proc.stdout
+    assert load_subject(out).num_frames == 1
