@@ -53,6 +53,7 @@ class FitConfig:
     crop: int | None = 64  # train on random square crops of this side (same place in every image of a
     # sample); the models are convolutional with position-free attention and run on full frames after
     image_size: int | None = None  # resize the triplets to this side first (the Examiner's input size)
+    split: str | None = None  # draw frames T of this split only ("train"; None: every frame, as for corpus subjects)
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch", "k_max"):
@@ -91,7 +92,7 @@ def _sampler(source: str | Path | Sequence[str | Path], fit: FitConfig):
     if fit.image_size is not None:
         data = data.resized(fit.image_size)
     rng = np.random.default_rng(fit.seed)
-    return data, (lambda: random_crop(data.sample(rng, fit.batch, fit.k_max), fit.crop, rng))
+    return data, (lambda: random_crop(data.sample(rng, fit.batch, fit.k_max, fit.split), fit.crop, rng))
 
 
 def _finish(run: Path, info: dict, previous: dict | None) -> dict:
