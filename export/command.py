@@ -1,6 +1,7 @@
 """``trioman export TARGET ...``: torch -> portable files (standard-library imports only here).
 
-Targets: ``avatar`` (a run's checkpoint -> an avatar folder, docs/formats.md). Each target is a
+Targets: ``avatar`` (a run's checkpoint -> an avatar folder, docs/formats.md) and ``onnx`` (the
+Refiner and/or Examiner -> ONNX files for trioman.runtime.models, with int8/fp16 variants). Each target is a
 sub-parser with its own arguments; ``run`` dispatches on ``args.target``.
 """
 
@@ -23,10 +24,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="also write posed_I.ply at subject frame I's pose (repeatable)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
+    p = targets.add_parser(
+        "onnx", help="the Refiner and/or Examiner -> ONNX files (fp32, int8, fp16) for the torch-free runtime",
+        description="Export the Refiner and/or the Examiner as ONNX models that trioman.runtime.models loads "
+                    "(docs/formats.md, 'ONNX models'): fp32 checked against torch, int8 variants gated on task "
+                    "metrics (a failing one is REJECTED, not written), fp16 for GPUs. Writes export.json.")
+    p.add_argument("--refiner", default=None, metavar="CKPT", help="Refiner checkpoint file or run folder (its latest checkpoint)")
+    p.add_argument("--examiner", default=None, metavar="CKPT", help="Examiner checkpoint file or run folder (its latest checkpoint)")
+    p.add_argument("--out", required=True, help="output folder to write")
+    p.add_argument("--variants", default="fp32,int8,fp16", help="comma-separated subset of fp32,int8,fp16 (default: all)")
+    p.add_argument("--calibration", nargs="+", default=None, metavar="TRIPLETS.npz",
+                   help="triplet files (trioman triplets) for int8 calibration, the int8 gates and real-frame parity "
+                        "(default: synthetic random images)")
+    p.add_argument("--size", type=int, default=None, metavar="N",
+                   help="the Refiner's export size N x N (default: the calibration frames' size, else its config's image_size)")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+
 
 def run(args: argparse.Namespace) -> int:
     if args.target == "avatar":
         return _run_avatar(args)
+    if args.target == "onnx":
+        return _run_onnx(args)
     raise ValueError(f"target: unknown export target {args.target!r}")
 
 
@@ -47,4 +66,17 @@ def _run_avatar(args: argparse.Namespace) -> int:
     for name, entry in avatar.meta["files"].items():
         print(f"export:   {out / name}  ({entry['bytes'] / 1e6:.2f} MB)")
     print(f"export: avatar {out} ({total / 1e6:.2f} MB); load it with trioman.runtime.formats.load_avatar")
+    return 0
+
+
+def _run_onnx(args: argparse.Namespace) -> int:
+    if args.refiner is None and args.examiner is None:
+        raise ValueError("export onnx: nothing to export: give --refiner CKPT and/or --examiner CKPT")
+    from trioman.export.onnx_models import export_onnx, summary_lines
+
+    report = export_onnx(refiner=args.refiner, examiner=args.examiner, out=args.out, variants=args.variants,
+                         calibration=args.calibration, size=args.size, overwrite=args.overwrite,
+                         progress=lambda msg: print(f"export: {msg}", flush=True))
+    for line in summary_lines(report):
+        print(line)
     return 0

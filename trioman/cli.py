@@ -31,7 +31,7 @@ COMMANDS = (
     Command("synth", "trioman.toolkit.synth.command", "render a synthetic subject (monocular video + poses + cameras)", "train"),
     Command("train", "trioman.toolkit.train.command", "train a Gaussian avatar on a subject", "train"),
     Command("eval", "trioman.toolkit.eval_command", "evaluate a trained avatar: metrics, grid, video", "train"),
-    Command("export", "trioman.export.command", "export a trained avatar as a portable avatar folder (numpy + ONNX)", "train"),
+    Command("export", "trioman.export.command", "export a trained avatar (portable folder) or the Refiner/Examiner (ONNX fp32/int8/fp16)", "train"),
     Command("synth-corpus", "trioman.toolkit.corpus_command", "synthetic subjects + baselines + triplets for the Refiner/Examiner", "train"),
     Command("triplets", "trioman.toolkit.triplets_command", "GT / coarse / normal-map triplets of a trained run", "train"),
     Command("train-refiner", "trioman.toolkit.refiner_command", "train the Refiner on a synthetic corpus", "train"),
