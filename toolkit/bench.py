@@ -4,7 +4,9 @@ Targets: ``synth`` (time per stage and peak memory of synthesising a subject); `
 quality against training time per preset, and the rasterizer's speed against the brute-force and
 dense references); ``render`` (the numpy runtime renderer against the torch rasterizer's forward and
 the brute-force oracle, and the cost of Gaussians the view does not need); ``models`` (Refiner and
-Examiner trained on a synthetic corpus, evaluated on held-out subjects). Timings are wall clock on
+Examiner trained on a synthetic corpus, evaluated on held-out subjects); ``deploy`` (error against run
+time of the renderer variants, the exported models per precision and optimisation level, and the
+augment loop's stages). Timings are wall clock on
 the machine named in the report; nothing here is a timed test.
 """
 
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-TARGETS = ("synth", "train", "render", "models")
+TARGETS = ("synth", "train", "render", "models", "deploy")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline-frames", default="all",
                         help="models: corpus variants for the coarse frames, e.g. all,subset (each extra one adds a tex+geo Refiner)")
     parser.add_argument("--examiner", default="examiner_nano", help="models: Examiner config name (default examiner_nano)")
+    parser.add_argument("--models", default="out/bench_models",
+                        help="deploy: the `bench models` report folder whose trained runs are exported (default out/bench_models)")
+    parser.add_argument("--repeats", type=int, default=5, help="deploy: timed calls per variant (the best counts)")
+    parser.add_argument("--threads", type=int, default=None, help="deploy: onnxruntime intra-op threads (default: ORT's)")
+    parser.add_argument("--augment-frames", type=int, default=8, help="deploy: source frames of the augment run")
 
 
 def _machine() -> str:
@@ -225,17 +232,20 @@ def run(args: argparse.Namespace) -> int:
 
     if args.size is None:
         args.size = 128 if args.target == "models" else 256
-    if args.target == "models":
-        from trioman.toolkit.bench_models import bench_models, models_markdown
+    if args.target in ("models", "deploy"):
+        if args.target == "models":
+            from trioman.toolkit.bench_models import bench_models as bench, models_markdown as markdown
+        else:
+            from trioman.toolkit.bench_deploy import bench_deploy as bench, deploy_markdown as markdown
 
-        report = bench_models(args)
+        report = bench(args)
         report["machine"], report["peak_rss_mib"] = _machine(), _peak_rss_mib()
     else:
         report = {"synth": bench_synth, "train": bench_train, "render": bench_render}[args.target](args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / f"{args.target}.json", json.dumps(report, indent=2) + "\n")
-    md = (models_markdown(report) if args.target == "models" else
+    md = (markdown(report) if args.target in ("models", "deploy") else
           {"synth": _synth_markdown, "train": _train_markdown, "render": _render_markdown}[args.target](report))
     atomic_write_text(out / f"{args.target}.md", md)
     print(md)

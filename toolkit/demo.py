@@ -1,8 +1,11 @@
 """``trioman demo``: the whole pipeline on the embedded synthetic subject.
 
 synth -> train (quick preset) -> eval (test and train splits) -> export the avatar -> animate it with
-the runtime (numpy + onnxruntime, no torch), plus a turntable MP4 of the subject's posed mesh; prints
-where the report, grid, avatar and videos are.
+the runtime (numpy + onnxruntime, no torch), plus a turntable MP4 of the subject's posed mesh ->
+triplets of the trained avatar -> a small Refiner and Examiner trained on the subject's own training
+frames (a demo of the loop; ``trioman bench models`` trains them on a corpus of subjects) -> ONNX
+export (fp32 + int8) -> ``augment`` with the runtime; prints where the report, grid, avatar, videos,
+ONNX models and pseudo-GT frames are.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
     parser.add_argument("--frames", type=int, default=120, help="subject frames (default 120)")
     parser.add_argument("--iterations", type=int, default=None, help="override the quick preset's iterations")
+    parser.add_argument("--model-steps", type=int, default=300, help="Refiner and Examiner training steps (default 300)")
+    parser.add_argument("--augment-frames", type=int, default=24, help="source frames to augment (default 24)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -25,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from trioman.export.avatar import export_avatar
+    from trioman.export.onnx_models import summary_lines
     from trioman.runtime.animate import animate
     from trioman.runtime.formats.motion import motion_from_spec
     from trioman.toolkit.evaluate import evaluate
@@ -62,5 +68,37 @@ def run(args: argparse.Namespace) -> int:
     print(f"demo: avatar        {avatar_dir} ({avatar.num_gaussians} Gaussians; canonical.ply opens in splat viewers)")
     for name, r in anims.items():
         print(f"demo: animation     {r['video']} ({r['frames']} frames, {r['ms_per_frame']:.0f} ms/frame with the numpy runtime)")
+    aug = _augment_stage(args, out, run_dir, avatar_dir, progress)
+    print(f"demo: ONNX models   {aug['onnx']} (report {aug['onnx'] / 'export.json'}):")
+    for line in summary_lines(aug["export"]):
+        print(f"demo:   {line}")
+    s, t = aug["result"]["summary"], aug["result"]["timing"]["ms_per_source_frame"]
+    print(f"demo: pseudo-GT     {aug['out']} ({s['accepted']} frames kept of {s['candidates']} candidates from "
+          f"{s['source_frames']} source frames, {t['total']:.0f} ms per source frame; report {aug['out'] / 'augment.json'}, "
+          f"scores {aug['out'] / 'scores.png'}); train on it with trioman train {subject.root} --extra-frames {aug['out']}")
     print(f"demo: done in {time.perf_counter() - start:.0f} s")
     return 0
+
+
+def _augment_stage(args: argparse.Namespace, out, run_dir, avatar_dir, progress: bool) -> dict:
+    """Triplets of the trained avatar -> Refiner (tex+geo) and Examiner on the subject's training frames
+    -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
+    import shutil
+
+    from trioman.export.onnx_models import export_onnx
+    from trioman.runtime.augment import augment
+    from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
+    from trioman.toolkit.triplets import build_triplets
+
+    triplets = build_triplets(run_dir, out / "triplets.npz", progress=progress)
+    shutil.rmtree(out / "models", ignore_errors=True)  # fresh models, like the fresh avatar run
+    steps = args.model_steps
+    _, refiner = fit_refiner([triplets], out / "models" / "refiner", "tex+geo", FitConfig(steps=steps, split="train"))
+    _, examiner = fit_examiner([triplets], out / "models" / "examiner",
+                               fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(args.size, 128), split="train"))
+    onnx = out / "onnx"
+    report = export_onnx(refiner=refiner["checkpoint"], examiner=examiner["checkpoint"], out=onnx, variants=("fp32", "int8"),
+                calibration=[triplets], size=args.size, overwrite=True)
+    result = augment(out / "subject", avatar_dir, onnx / "refiner.onnx", out / "augmented",
+                     examiner=onnx / "examiner.onnx", limit=args.augment_frames, overwrite=True, progress=progress)
+    return {"onnx": onnx, "export": report, "out": out / "augmented", "result": result}
