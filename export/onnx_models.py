@@ -56,6 +56,7 @@ from torch import nn
 
 from trioman import __version__
 from trioman.runtime import models as rt
+from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.common import _move_into_place
 from trioman.runtime.image_io import fsync_dir, temp_sibling
 
@@ -384,14 +385,6 @@ def _torch_export(model: nn.Module, example: tuple[torch.Tensor, ...], inputs: S
     return onnx.load_from_string(buffer.getvalue())
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _save(proto: onnx.ModelProto, path: Path) -> None:
     with open(path, "wb") as f:
         f.write(proto.SerializeToString())
@@ -500,7 +493,7 @@ class _Job:
                  "parity_max_abs": None if parity is None else parity["max_abs"], "parity": parity, "gate": gate,
                  "note": note}
         if status == "written":
-            entry.update(bytes=path.stat().st_size, sha256=_sha256(path))
+            entry.update(bytes=path.stat().st_size, sha256=sha256_file(path))
         entry["seconds"] = round(time.perf_counter() - t0, 3)
         return entry
 
