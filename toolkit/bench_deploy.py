@@ -202,7 +202,9 @@ def scatter_plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     floor = 1e-9  # the references themselves (error 0) sit on this line
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4), dpi=110)
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 5.5), dpi=110)
     for ax, comp in zip(axes, ("renderer", "refiner", "examiner")):
         pts = [r for r in rows if r["component"] == comp and r["ms"] is not None]
         for i, r in enumerate(pts):
@@ -213,8 +215,12 @@ def scatter_plot(rows: list[dict], path: Path) -> None:
         ax.set_ylabel("max abs error vs torch fp32" + (" (rgb)" if comp == "renderer" else " (image)" if comp == "refiner" else " (score)"))
         ax.set_title(comp)
         ax.axhline(floor, color="0.8", lw=0.8)
-        ax.legend(fontsize=6, loc="upper right")
-    fig.suptitle("trioman bench deploy: error against run time (reference at the bottom line)", fontsize=10)
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        wide = bool(pts) and max(r["ms"] for r in pts) > 30 * min(r["ms"] for r in pts)
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0,) if wide else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=1, frameon=False)
+    fig.suptitle("trioman bench deploy: error against run time (the torch fp32 reference sits on the bottom line)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
