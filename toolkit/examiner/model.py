@@ -2,19 +2,25 @@
 matches a real reference frame, in [0, 1].
 
     f_c = V(candidate), f_k = V(reference)           ViT patch features [B, N, C], class token dropped
-    n dual blocks, C^{i-1} -> C^i:
+    n dual blocks, C^{i-1} -> C^i, one attention layer shared by both branches:
         q = Q(LN(f_k))                                 recorded once, used by both branches
-        lower: f_k + Attn(q, K(LN(f_k)), V(LN(f_k)))   self-attention of the reference
-        upper: f_k + Attn(q, K(LN(f_c)), V(LN(f_c)))   the SAME layer, keys/values of the candidate
-        each -> [B, C, H, W] -> conv (C -> C^i) + GELU -> f^i [B, N, C^i]
+        lower: Attn(q, K(LN(f_k)), V(LN(f_k)))         the reference alone
+        upper: Attn(q, K(LN(f_c)), V(LN(f_c)))         the SAME layer, keys/values of the candidate
+        + residual, each -> [B, C, H, W] -> conv (C -> C^i) + GELU -> f^i [B, N, C^i]
     on the upper branch f_c^n: patch scores s = MLP_s(LN(f_c^n)), weights w = MLP_w(LN(f_c^n)),
         score = sum_patches softmax(w) * sigmoid(s)
 
 Design choices the paper leaves open (documented here, tested in tests/toolkit/examiner):
+- ``dual_attention="channel"`` (default): the paper says the layer examines "the semantic
+  similarity between different channels", so the attention map is [C, C] per head, computed over
+  all patches (XCiT's cross-covariance attention: q and k L2-normalised along the patches, a learned
+  temperature); each patch's output mixes the channels of V at that same patch, so the upper branch
+  lives on the candidate's patches and its residual is f_c (the lower branch's is f_k).
+  ``"token"``: the usual [N, N] map; the output lives on the reference's patches and both residuals
+  are f_k (a transformer decoder's cross-attention). Measured on the synthetic corpus (bench models),
+  the token reading never left the 3:1 prior: the candidate only reaches the heads as an average over
+  mostly background patches. Checkpoints saved before the field existed are token models.
 - the backbone's class token is dropped before the dual blocks (it only takes part in V's attention);
-- the residual of both branches is the query stream f_k, as in a transformer decoder's
-  cross-attention, so the upper branch carries "the reference plus what the candidate offers at the
-  reference's queries" and the heads can compare the two;
 - the attention layer, the squeeze conv and the heads are shared by both branches, so a candidate
   equal to the reference gives an upper branch identical to the lower one: the lower branch's score
   is the score of the pair (reference, reference), the paper's "I^{T+k} as the sole input".
@@ -27,9 +33,13 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from trioman.toolkit.examiner.vit import VisionTransformer, attention, load_timm_weights, read_state_dict
+
+
+DUAL_ATTENTION = ("channel", "token")
 
 
 @dataclass(frozen=True)
@@ -44,6 +54,7 @@ class ExaminerConfig:
     dual_heads: int = 2  # heads of the dual attention; divides C and every C^i but the last
     conv_kernel: int = 3  # squeeze conv kernel (odd; 1 = channel mixing only)
     head_hidden: int = 64  # hidden width of the score and weight MLPs
+    dual_attention: str = "channel"  # "channel": C x C attention map between channels; "token": N x N
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dual_dims", tuple(self.dual_dims))
@@ -62,6 +73,8 @@ class ExaminerConfig:
         for name, dim in [("embed_dim", self.embed_dim)] + [(f"dual_dims[{i}]", d) for i, d in enumerate(self.dual_dims[:-1])]:
             if dim % self.dual_heads:
                 raise ValueError(f"{name}: {dim} is not divisible by dual_heads {self.dual_heads}")
+        if self.dual_attention not in DUAL_ATTENTION:
+            raise ValueError(f"dual_attention: expected one of {DUAL_ATTENTION}, got {self.dual_attention!r}")
         if self.conv_kernel % 2 == 0:
             raise ValueError(f"conv_kernel: must be odd, got {self.conv_kernel}")
 
@@ -77,7 +90,8 @@ class ExaminerConfig:
         unknown = sorted(set(d) - {f.name for f in dataclasses.fields(cls)})
         if unknown:
             raise ValueError(f"config: unknown Examiner config fields {unknown}")
-        return cls(**d)
+        # configs saved before dual_attention existed describe token-attention models
+        return cls(**{"dual_attention": "token", **d})
 
 
 # Named configurations. examiner_tiny / examiner_small have the backbone layout of timm's
@@ -110,8 +124,9 @@ class PatchLogits(NamedTuple):
 class DualAttention(nn.Module):
     """One attention layer for both branches: Q from the reference only, K/V from each branch."""
 
-    def __init__(self, dim: int, num_heads: int, fused_attn: bool) -> None:
+    def __init__(self, dim: int, num_heads: int, fused_attn: bool, kind: str = "channel") -> None:
         super().__init__()
+        self.kind = kind
         self.num_heads = num_heads
         self.head_dim = dim // num_heads
         self.scale = self.head_dim**-0.5
@@ -119,6 +134,8 @@ class DualAttention(nn.Module):
         self.q = nn.Linear(dim, dim)
         self.kv = nn.Linear(dim, 2 * dim)
         self.proj = nn.Linear(dim, dim)
+        if kind == "channel":
+            self.temperature = nn.Parameter(torch.ones(num_heads, 1, 1))
 
     def _split(self, x: torch.Tensor, parts: int) -> torch.Tensor:
         """[B, N, parts*C] -> [parts, B, heads, N, d]."""
@@ -132,19 +149,32 @@ class DualAttention(nn.Module):
         """Normalised candidate / reference tokens [B, N, C] -> (upper, lower) outputs [B, N, C]."""
         q = self._split(self.q(x_k), 1)[0]  # Q(f_k), recorded for the upper branch
         kv_k, kv_c = self._split(self.kv(x_k), 2), self._split(self.kv(x_c), 2)
+        if self.kind == "channel":
+            return self._merge(self._channel(q, kv_c[0], kv_c[1])), self._merge(self._channel(q, kv_k[0], kv_k[1]))
         upper = attention(q, kv_c[0], kv_c[1], self.scale, self.fused_attn)
         lower = attention(q, kv_k[0], kv_k[1], self.scale, self.fused_attn)
         return self._merge(upper), self._merge(lower)
 
+    def _channel(self, q: torch.Tensor, k: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """Cross-covariance attention (XCiT): q, k, v [B, h, N, d] -> [B, h, N, d]. The [d, d] map
+        softmax_j(t * <q_i, k_j>) compares channel i of the query image with channel j of the key
+        image over all patches (q, k L2-normalised along the patches); each patch's output mixes the
+        channels of v at that same patch, so the key image's local detail is kept."""
+        q = F.normalize(q, dim=-2, eps=1e-6)
+        k = F.normalize(k, dim=-2, eps=1e-6)
+        attn = (q.transpose(-2, -1) @ k * self.temperature).softmax(dim=-1)  # [B, h, d, d]
+        return v @ attn.transpose(-2, -1)
+
 
 class DualBlock(nn.Module):
-    """Dual attention, the query residual, then a shared conv squeezing C -> C_out on the patch grid."""
+    """Dual attention, the residual, then a shared conv squeezing C -> C_out on the patch grid."""
 
-    def __init__(self, dim: int, out_dim: int, num_heads: int, grid: int, kernel: int, fused_attn: bool) -> None:
+    def __init__(self, dim: int, out_dim: int, num_heads: int, grid: int, kernel: int, fused_attn: bool,
+                 kind: str = "channel") -> None:
         super().__init__()
         self.grid = grid
         self.norm = nn.LayerNorm(dim, eps=1e-6)
-        self.attn = DualAttention(dim, num_heads, fused_attn)
+        self.attn = DualAttention(dim, num_heads, fused_attn, kind)
         self.squeeze = nn.Conv2d(dim, out_dim, kernel_size=kernel, padding=kernel // 2)
         self.act = nn.GELU()
 
@@ -156,7 +186,10 @@ class DualBlock(nn.Module):
     def forward(self, f_c: torch.Tensor, f_k: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(f_c, f_k) [B, N, C] -> (f_c', f_k') [B, N, C_out]."""
         upper, lower = self.attn(self.norm(f_c), self.norm(f_k))
-        return self._conv(f_k + upper), self._conv(f_k + lower)
+        # the residual is the stream whose patches the output lives on: the values' (channel) or
+        # the queries' (token)
+        upper_in = f_c if self.attn.kind == "channel" else f_k
+        return self._conv(upper_in + upper), self._conv(f_k + lower)
 
 
 class Examiner(nn.Module):
@@ -169,7 +202,7 @@ class Examiner(nn.Module):
         self.backbone = VisionTransformer(c.img_size, c.patch_size, c.embed_dim, c.depth, c.num_heads, c.mlp_ratio, exportable=exportable)
         dims = (c.embed_dim, *c.dual_dims)
         self.dual_blocks = nn.ModuleList(
-            DualBlock(dims[i], dims[i + 1], c.dual_heads, c.grid_size, c.conv_kernel, not exportable) for i in range(len(c.dual_dims))
+            DualBlock(dims[i], dims[i + 1], c.dual_heads, c.grid_size, c.conv_kernel, not exportable, c.dual_attention) for i in range(len(c.dual_dims))
         )
         self.head_norm = nn.LayerNorm(dims[-1], eps=1e-6)
         self.score_mlp = nn.Sequential(nn.Linear(dims[-1], c.head_hidden), nn.GELU(), nn.Linear(c.head_hidden, 1))

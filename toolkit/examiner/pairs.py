@@ -15,12 +15,17 @@ class ExaminerBatch(NamedTuple):
     reference: torch.Tensor  # I^{T+k}, a real frame of the same subject at another time
 
 
+PAIRINGS = ("paired", "paper")
+
+
 class ExaminerPairs(NamedTuple):
-    """(candidate, reference) pairs [2B, 3, H, W] and their target similarity [2B] in {0, 1}."""
+    """(candidate, reference) pairs [P, 3, H, W], their target similarity [P] in {0, 1} and loss
+    weights [P] (summing to the number of samples)."""
 
     candidate: torch.Tensor
     reference: torch.Tensor
     target: torch.Tensor
+    weight: torch.Tensor
 
 
 def check_batch(batch: ExaminerBatch) -> None:
@@ -36,19 +41,30 @@ def check_batch(batch: ExaminerBatch) -> None:
         shape = x.shape
 
 
-def sample_pairs(batch: ExaminerBatch, rng: torch.Generator) -> ExaminerPairs:
-    """Two pairs per sample, as in the paper:
+def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "paired") -> ExaminerPairs:
+    """Training pairs from B samples. The paper's three kinds of pair:
 
     - (I^{T+k}, I^{T+k}) -> 1: "the branch with I^{T+k} as the sole input";
-    - with equal probability (I_c^T, I^{T+k}) -> 0 or (I^T, I^{T+k}) -> 1.
+    - (I^T, I^{T+k}) -> 1, a real frame;  (I_c^T, I^{T+k}) -> 0, a coarse frame.
 
-    So over many draws 1/2 of the pairs are identical, 1/4 coarse (target 0) and 1/4 real
-    (target 1); 3/4 of the targets are 1. The first B rows are the identical pairs, the last B the
-    interaction pairs in sample order. ``rng`` (a seeded torch.Generator) draws the coin flips.
+    ``pairing="paper"``: 2B pairs, the identical one of every sample (first B rows) and, with equal
+    probability (coin flips from ``rng``), its real or its coarse pair (last B rows); over many draws
+    1/2 identical, 1/4 real, 1/4 coarse, weight 1 each.
+    ``pairing="paired"`` (default): 3B pairs, every sample's identical, real and coarse pair (rows
+    [0, B), [B, 2B), [2B, 3B)), weighted 1/4, 1/4, 1/2, so both targets weigh the same. The real and
+    the coarse frame then meet the same reference in the same step: the paper's random draw left
+    our from-scratch Examiner at the 3:1 prior (constant score, AUROC 0.51, see the bench notes).
     """
     check_batch(batch)
-    b = batch.gt.shape[0]
+    if pairing not in PAIRINGS:
+        raise ValueError(f"pairing: expected one of {PAIRINGS}, got {pairing!r}")
+    b, dev, dt = batch.gt.shape[0], batch.gt.device, batch.gt.dtype
+    ref = batch.reference
+    if pairing == "paired":
+        target = torch.cat([torch.ones(2 * b), torch.zeros(b)]).to(dev, dt)
+        weight = torch.tensor([0.25, 0.25, 0.5]).repeat_interleave(b).to(dev, dt)
+        return ExaminerPairs(torch.cat([ref, batch.gt, batch.coarse]), torch.cat([ref, ref, ref]), target, weight)
     use_real = torch.rand(b, generator=rng) < 0.5  # [B]
-    chosen = torch.where(use_real.to(batch.gt.device)[:, None, None, None], batch.gt, batch.coarse)
-    target = torch.cat([torch.ones(b), use_real.float()]).to(batch.gt.device, batch.gt.dtype)
-    return ExaminerPairs(torch.cat([batch.reference, chosen]), torch.cat([batch.reference, batch.reference]), target)
+    chosen = torch.where(use_real.to(dev)[:, None, None, None], batch.gt, batch.coarse)
+    target = torch.cat([torch.ones(b), use_real.float()]).to(dev, dt)
+    return ExaminerPairs(torch.cat([ref, chosen]), torch.cat([ref, ref]), target, torch.ones(2 * b, dtype=dt, device=dev))

@@ -12,7 +12,7 @@ import torch
 
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig
-from trioman.toolkit.examiner.pairs import ExaminerBatch, sample_pairs
+from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 
 
@@ -24,8 +24,11 @@ class ExaminerTrainConfig:
     checkpoint_every: int = 250
     keep_checkpoints: int = 2
     seed: int = 0
+    pairing: str = "paired"  # sample_pairs: "paired" (default) or "paper"
 
     def __post_init__(self) -> None:
+        if self.pairing not in PAIRINGS:
+            raise ValueError(f"pairing: expected one of {PAIRINGS}, got {self.pairing!r}")
         if self.steps < 1:
             raise ValueError(f"steps: must be >= 1, got {self.steps}")
         if not self.lr > 0:
@@ -86,9 +89,9 @@ def train_examiner(
     losses: list[float] = []
     batches = _batches(data)
     while step < config.steps:
-        pairs = sample_pairs(next(batches), rng)
+        pairs = sample_pairs(next(batches), rng, config.pairing)
         upper, _ = model.branch_logits(pairs.candidate, pairs.reference)
-        loss = examiner_loss(upper, pairs.target)
+        loss = examiner_loss(upper, pairs.target, pairs.weight)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

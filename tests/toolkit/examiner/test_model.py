@@ -45,24 +45,50 @@ def test_scores_are_finite_and_in_unit_interval(model, kind):
         assert ((score >= 0) & (score <= 1)).all()
 
 
-def test_upper_branch_attends_with_the_reference_queries():
+def _dual_attention_by_hand(attn: DualAttention, q_src: torch.Tensor, kv_src: torch.Tensor) -> torch.Tensor:
+    """Brute-force reference of one branch: Q from q_src, K and V from kv_src ([2, 5, 8], 2 heads)."""
+    q = attn.q(q_src).reshape(2, 5, 2, 4).transpose(1, 2)  # [B, h, N, d]
+    k, v = attn.kv(kv_src).reshape(2, 5, 2, 2, 4).permute(2, 0, 3, 1, 4)
+    if attn.kind == "token":
+        out = torch.softmax(q @ k.transpose(-2, -1) / 2.0, dim=-1) @ v  # [N, N] map, d ** -0.5 = 1/2
+    else:
+        out = torch.empty_like(v)
+        for b in range(2):
+            for h in range(2):
+                qn = q[b, h] / q[b, h].norm(dim=0)  # each channel unit-norm over the patches
+                kn = k[b, h] / k[b, h].norm(dim=0)
+                logits = torch.tensor([[float((qn[:, i] @ kn[:, j]).detach()) for j in range(4)] for i in range(4)])
+                a = torch.softmax(logits * attn.temperature[h, 0, 0], dim=-1)  # [d, d]
+                out[b, h] = torch.stack([v[b, h, n] @ a.T for n in range(5)])  # patch n mixes its own channels
+    return attn.proj(out.transpose(1, 2).reshape(2, 5, 8))
+
+
+@pytest.mark.parametrize("kind", ["channel", "token"])
+def test_upper_branch_attends_with_the_reference_queries(kind):
     torch.manual_seed(0)
-    attn = DualAttention(dim=8, num_heads=2, fused_attn=False)
+    attn = DualAttention(dim=8, num_heads=2, fused_attn=False, kind=kind)
+    if kind == "channel":
+        attn.temperature.data = torch.tensor([0.7, 1.9]).reshape(2, 1, 1)
     x_c, x_k = torch.randn(2, 5, 8), torch.randn(2, 5, 8)
     upper, lower = attn(x_c, x_k)
-
-    def manual(q_src, kv_src):
-        q = attn.q(q_src).reshape(2, 5, 2, 4).transpose(1, 2)
-        k, v = attn.kv(kv_src).reshape(2, 5, 2, 2, 4).permute(2, 0, 3, 1, 4)
-        out = torch.softmax(q @ k.transpose(-2, -1) / 2.0, dim=-1) @ v
-        return attn.proj(out.transpose(1, 2).reshape(2, 5, 8))
-
-    torch.testing.assert_close(upper, manual(x_k, x_c))  # Q(f_k), K(f_c), V(f_c)
-    torch.testing.assert_close(lower, manual(x_k, x_k))  # Q(f_k), K(f_k), V(f_k)
+    torch.testing.assert_close(upper, _dual_attention_by_hand(attn, x_k, x_c))  # Q(f_k), K(f_c), V(f_c)
+    torch.testing.assert_close(lower, _dual_attention_by_hand(attn, x_k, x_k))  # Q(f_k), K(f_k), V(f_k)
 
 
-def test_fused_and_exportable_attention_agree(model):
-    exportable = create_examiner(TINY, exportable=True).eval()
+def test_old_configs_load_as_token_attention():
+    d = TINY.to_dict()
+    del d["dual_attention"]
+    assert ExaminerConfig.from_dict(d).dual_attention == "token"
+    with pytest.raises(ValueError, match="dual_attention: expected one of"):
+        ExaminerConfig(dual_attention="spatial")
+
+
+@pytest.mark.parametrize("kind", ["channel", "token"])
+def test_fused_and_exportable_attention_agree(kind):
+    torch.manual_seed(0)
+    config = dataclasses.replace(TINY, dual_attention=kind)
+    model = create_examiner(config).eval()
+    exportable = create_examiner(config, exportable=True).eval()
     exportable.load_state_dict(model.state_dict())
     c, r = export_inputs(model, batch=2)
     torch.testing.assert_close(exportable(c, r), model(c, r), atol=1e-6, rtol=1e-5)

@@ -1,4 +1,4 @@
-"""Training pairs: the paper's proportions, seeding, and input checks."""
+"""Training pairs: the paper's proportions, the paired default, seeding, and input checks."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def test_pairs_follow_the_paper():
     rng = torch.Generator().manual_seed(0)
     counts = {"identical": 0, "coarse": 0, "real": 0}
     for _ in range(200):
-        pairs = sample_pairs(_batch(16), rng)
+        pairs = sample_pairs(_batch(16), rng, "paper")
         assert pairs.candidate.shape == pairs.reference.shape == (32, 3, 4, 4) and pairs.target.shape == (32,)
         assert (pairs.reference == 0.5).all()
         cand = pairs.candidate[:, 0, 0, 0]
@@ -26,6 +26,7 @@ def test_pairs_follow_the_paper():
         assert (identical | coarse | real).all()
         assert identical[:16].all()  # one identical pair per sample, first
         assert (pairs.target[identical] == 1).all() and (pairs.target[real] == 1).all() and (pairs.target[coarse] == 0).all()
+        assert (pairs.weight == 1).all()
         counts["identical"] += int(identical.sum())
         counts["coarse"] += int(coarse.sum())
         counts["real"] += int(real.sum())
@@ -35,10 +36,24 @@ def test_pairs_follow_the_paper():
     assert abs(counts["real"] / total - 0.25) < 0.01
 
 
+def test_paired_default_gives_every_kind_with_balanced_weights():
+    pairs = sample_pairs(_batch(5), torch.Generator().manual_seed(0))
+    assert pairs.candidate.shape == pairs.reference.shape == (15, 3, 4, 4)
+    assert (pairs.reference == 0.5).all()
+    cand = pairs.candidate[:, 0, 0, 0]
+    torch.testing.assert_close(cand, torch.tensor([0.5] * 5 + [1.0] * 5 + [0.0] * 5))  # identical, real, coarse
+    torch.testing.assert_close(pairs.target, torch.tensor([1.0] * 10 + [0.0] * 5))
+    torch.testing.assert_close(pairs.weight, torch.tensor([0.25] * 10 + [0.5] * 5))
+    # the paper's proportions as weights of the positives, and both targets weigh the same
+    assert float(pairs.weight[pairs.target == 1].sum()) == float(pairs.weight[pairs.target == 0].sum()) == 2.5
+    with pytest.raises(ValueError, match="pairing: expected one of"):
+        sample_pairs(_batch(2), torch.Generator(), "balanced")
+
+
 def test_pairs_are_seeded():
-    a = sample_pairs(_batch(64), torch.Generator().manual_seed(3))
-    b = sample_pairs(_batch(64), torch.Generator().manual_seed(3))
-    c = sample_pairs(_batch(64), torch.Generator().manual_seed(4))
+    a = sample_pairs(_batch(64), torch.Generator().manual_seed(3), "paper")
+    b = sample_pairs(_batch(64), torch.Generator().manual_seed(3), "paper")
+    c = sample_pairs(_batch(64), torch.Generator().manual_seed(4), "paper")
     assert torch.equal(a.target, b.target) and torch.equal(a.candidate, b.candidate)
     assert not torch.equal(a.target, c.target)
 
