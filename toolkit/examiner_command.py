@@ -1,5 +1,7 @@
 """``trioman train-examiner --corpus DIR --out RUN``: train the Examiner on a synthetic corpus's
-training subjects with the paper's pair targets (toolkit/model_training.py); resumes a run folder."""
+training subjects with the paper's pair targets (toolkit/model_training.py); resumes a run folder.
+``--pairing paper`` draws the paper's 1/2 identical, 1/4 real, 1/4 coarse pairs at random; the
+default "paired" gives every sample all three, class-balanced (toolkit/examiner/pairs.py)."""
 
 from __future__ import annotations
 
@@ -14,13 +16,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch", type=int, default=4)
     parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all", help="corpus variant")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--pairing", choices=("paired", "paper"), default="paired",
+                        help="training pairs: every sample's identical/real/coarse pair, class-balanced (default), or the paper's random draw")
 
 
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.model_training import FitConfig, fit_examiner
 
     fit = FitConfig(steps=args.steps, batch=args.batch, lr=3e-4, crop=None, seed=args.seed, baseline_frames=args.baseline_frames)
-    _, info = fit_examiner(args.corpus, args.out, args.model, fit)
+    _, info = fit_examiner(args.corpus, args.out, args.model, fit, args.pairing)
     print(f"train-examiner: {info['checkpoint']} ({args.model}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
           f"final loss {info['final_loss']:.4f})")
     return 0

@@ -111,6 +111,17 @@ def _same_fit(old: dict, new: dict) -> bool:
     return all(old.get(k, defaults.get(k)) == v for k, v in new.items())
 
 
+def _earlier_seconds(run: Path, fit: dict) -> float:
+    """Wall time already spent on ``run`` by a call with the same fit but fewer steps (a run being
+    resumed to more steps), so fit.json keeps the total; 0 for a new run."""
+    path = run / "fit.json"
+    if not path.is_file():
+        return 0.0
+    old = json.loads(path.read_text())
+    same = _same_fit({**old.get("fit", {}), "steps": fit["steps"]}, fit)
+    return float(old.get("seconds", 0.0)) if same and old["fit"].get("steps", 0) < fit["steps"] else 0.0
+
+
 def _previous(run: Path, steps: int) -> dict | None:
     """fit.json of a complete run (its last checkpoint reached ``steps``), else None."""
     from trioman.toolkit.train.checkpoint import latest_checkpoint
@@ -132,7 +143,7 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
     cfg = model_cfg or RefinerConfig(image_size=size, conditions=conditions, **REFINER_SIZES[refiner_size])
     torch.manual_seed(fit.seed)
     model = create_refiner(cfg, seed=fit.seed)
-    t = time.perf_counter()
+    t = time.perf_counter() - _earlier_seconds(run, asdict(fit))
     result = train_refiner(model, lambda step: refiner_batch(draw()), RefinerTrainConfig(steps=fit.steps, lr=fit.lr),
                            run=run, lpips=lpips)
     info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(),
@@ -142,22 +153,23 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
 
 
 def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
-                 ) -> tuple[torch.nn.Module, dict]:
+                 pairing: str = "paired") -> tuple[torch.nn.Module, dict]:
     """Train an Examiner (a registered config name) on the corpus's training subjects (or a list of
-    triplet files) into ``run``, at the triplets' size or ``fit.image_size``."""
+    triplet files) into ``run``, at the triplets' size or ``fit.image_size``, with ``pairing``
+    (``sample_pairs``: "paired" or the paper's random draw)."""
     run = Path(run)
     previous = _previous(run, fit.steps)
     data, draw = _sampler(corpus, fit)
     torch.manual_seed(fit.seed)
     model = create_examiner(name, img_size=data.gt.shape[1])
-    t = time.perf_counter()
+    t = time.perf_counter() - _earlier_seconds(run, {**asdict(fit), "pairing": pairing})
 
     def batches():
         while True:
             yield examiner_batch(draw())
 
-    result = train_examiner(model, batches(), ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed), run=run)
-    info = {"model": "examiner", "name": name, "fit": asdict(fit), "config": model.config.to_dict(),
+    result = train_examiner(model, batches(), ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing), run=run)
+    info = {"model": "examiner", "name": name, "fit": {**asdict(fit), "pairing": pairing}, "config": model.config.to_dict(),
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
             "checkpoint": str(result.checkpoint)}
     return model, _finish(run, info, previous)

@@ -60,6 +60,11 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
     info = json.loads((run / "fit.json").read_text())
     assert info["conditions"] == "tex" and info["config"]["image_size"] == 16 and (run / "checkpoints").is_dir()
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex"), "--steps", "2", "--batch", "2"]) == 0
+    assert json.loads((tmp_path / "ex" / "fit.json").read_text())["fit"]["pairing"] == "paired"
+    assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "exp"), "--steps", "2", "--batch", "2",
+                 "--pairing", "paper"]) == 0
+    info = json.loads((tmp_path / "exp" / "fit.json").read_text())
+    assert info["fit"]["pairing"] == "paper" and info["config"]["dual_attention"] == "channel"
     args = argparse.Namespace(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),
                               refiner_steps=2, examiner_steps=2, batch=2, examiner="examiner_nano", crop=16,
                               refiner_size="compact", baseline_frames="all")
@@ -95,3 +100,19 @@ def test_fit_records_written_before_a_field_was_added_still_match(tmp_path):
     new = dataclasses.asdict(FitConfig(steps=3))
     old = {k: v for k, v in new.items() if k != "image_size"}
     assert _same_fit(old, new) and not _same_fit(old, dict(new, image_size=32))
+
+
+def test_resuming_a_run_to_more_steps_keeps_its_total_wall_time(corpus, tmp_path):
+    from trioman.toolkit.model_training import _earlier_seconds, fit_examiner
+
+    fit = FitConfig(steps=2, batch=2, crop=None)
+    _, first = fit_examiner(corpus, tmp_path / "ex", fit=fit)
+    _, more = fit_examiner(corpus, tmp_path / "ex", fit=dataclasses.replace(fit, steps=3))
+    assert more["fit"]["steps"] == 3 and more["seconds"] > first["seconds"]
+    run = tmp_path / "rec"
+    run.mkdir()
+    (run / "fit.json").write_text(json.dumps({"fit": dataclasses.asdict(FitConfig(steps=1000)), "seconds": 100.0}))
+    assert _earlier_seconds(run, dataclasses.asdict(FitConfig(steps=2500))) == 100.0  # resumed to more steps
+    assert _earlier_seconds(run, dataclasses.asdict(FitConfig(steps=1000))) == 0.0  # the same run again
+    assert _earlier_seconds(run, dataclasses.asdict(FitConfig(steps=2500, batch=8))) == 0.0  # another fit
+    assert _earlier_seconds(tmp_path / "none", dataclasses.asdict(fit)) == 0.0
