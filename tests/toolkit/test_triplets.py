@@ -46,6 +46,14 @@ def test_sampling_pairs_frames_of_one_sequence(triplet_file):
     np.testing.assert_array_equal(a.reference, b.reference)
     ev = ts.evaluation("test")
     assert len(ev.gt) == int((ts.split == "test").sum())
+    near, again = ts.nearby("test", k_max=2, seed=1), ts.nearby("test", k_max=2, seed=1)
+    test = np.nonzero(ts.split == "test")[0]
+    np.testing.assert_array_equal(near.gt, ts.gt[test] * np.float32(1 / 255))  # every test frame, in order
+    np.testing.assert_array_equal(near.reference, again.reference)  # seeded
+    for j, i in enumerate(test):  # each reference is a partner T+k of its frame (or itself if it has none)
+        p = ts.partners(int(i), 2)
+        ok = [k for k in (p if len(p) else [i]) if np.array_equal(ts.gt[k] * np.float32(1 / 255), near.reference[j])]
+        assert ok
 
 
 def test_nearest_view_and_yaw():
