@@ -1,7 +1,7 @@
 """``trioman train-examiner --corpus DIR --out RUN``: train the Examiner on a synthetic corpus's
 training subjects with the paper's pair targets (toolkit/model_training.py); resumes a run folder.
 ``--pairing paper`` draws the paper's 1/2 identical, 1/4 real, 1/4 coarse pairs at random; the
-default "paired" gives every sample all three, class-balanced (toolkit/examiner/pairs.py)."""
+default "contrast" gives every sample its real and its coarse pair (toolkit/examiner/pairs.py)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch", type=int, default=4)
     parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all", help="corpus variant")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--pairing", choices=("paired", "paper"), default="paired",
-                        help="training pairs: every sample's identical/real/coarse pair, class-balanced (default), or the paper's random draw")
+    parser.add_argument("--pairing", choices=("contrast", "paper"), default="contrast",
+                        help="training pairs: every sample's real and coarse pair (default), or the paper's random draw")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -153,10 +153,10 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
 
 
 def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
-                 pairing: str = "paired") -> tuple[torch.nn.Module, dict]:
+                 pairing: str = "contrast") -> tuple[torch.nn.Module, dict]:
     """Train an Examiner (a registered config name) on the corpus's training subjects (or a list of
     triplet files) into ``run``, at the triplets' size or ``fit.image_size``, with ``pairing``
-    (``sample_pairs``: "paired" or the paper's random draw)."""
+    (``sample_pairs``: "contrast" or the paper's random draw)."""
     run = Path(run)
     previous = _previous(run, fit.steps)
     data, draw = _sampler(corpus, fit)

@@ -60,7 +60,7 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
     info = json.loads((run / "fit.json").read_text())
     assert info["conditions"] == "tex" and info["config"]["image_size"] == 16 and (run / "checkpoints").is_dir()
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex"), "--steps", "2", "--batch", "2"]) == 0
-    assert json.loads((tmp_path / "ex" / "fit.json").read_text())["fit"]["pairing"] == "paired"
+    assert json.loads((tmp_path / "ex" / "fit.json").read_text())["fit"]["pairing"] == "contrast"
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "exp"), "--steps", "2", "--batch", "2",
                  "--pairing", "paper"]) == 0
     info = json.loads((tmp_path / "exp" / "fit.json").read_text())

@@ -24,7 +24,7 @@ class ExaminerTrainConfig:
     checkpoint_every: int = 250
     keep_checkpoints: int = 2
     seed: int = 0
-    pairing: str = "paired"  # sample_pairs: "paired" (default) or "paper"
+    pairing: str = "contrast"  # sample_pairs: "contrast" (default) or "paper"
 
     def __post_init__(self) -> None:
         if self.pairing not in PAIRINGS:

@@ -1,4 +1,4 @@
-"""Training pairs: the paper's proportions, the paired default, seeding, and input checks."""
+"""Training pairs: the paper's proportions, the contrast default, seeding, and input checks."""
 
 from __future__ import annotations
 
@@ -36,16 +36,13 @@ def test_pairs_follow_the_paper():
     assert abs(counts["real"] / total - 0.25) < 0.01
 
 
-def test_paired_default_gives_every_kind_with_balanced_weights():
+def test_contrast_default_pairs_every_real_and_coarse_frame():
     pairs = sample_pairs(_batch(5), torch.Generator().manual_seed(0))
-    assert pairs.candidate.shape == pairs.reference.shape == (15, 3, 4, 4)
+    assert pairs.candidate.shape == pairs.reference.shape == (10, 3, 4, 4)
     assert (pairs.reference == 0.5).all()
-    cand = pairs.candidate[:, 0, 0, 0]
-    torch.testing.assert_close(cand, torch.tensor([0.5] * 5 + [1.0] * 5 + [0.0] * 5))  # identical, real, coarse
-    torch.testing.assert_close(pairs.target, torch.tensor([1.0] * 10 + [0.0] * 5))
-    torch.testing.assert_close(pairs.weight, torch.tensor([0.25] * 10 + [0.5] * 5))
-    # the paper's proportions as weights of the positives, and both targets weigh the same
-    assert float(pairs.weight[pairs.target == 1].sum()) == float(pairs.weight[pairs.target == 0].sum()) == 2.5
+    torch.testing.assert_close(pairs.candidate[:, 0, 0, 0], torch.tensor([1.0] * 5 + [0.0] * 5))  # real, then coarse
+    torch.testing.assert_close(pairs.target, torch.tensor([1.0] * 5 + [0.0] * 5))
+    assert (pairs.weight == 1).all()
     with pytest.raises(ValueError, match="pairing: expected one of"):
         sample_pairs(_batch(2), torch.Generator(), "balanced")
 
