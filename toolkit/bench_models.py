@@ -79,12 +79,12 @@ def bench_models(args: argparse.Namespace) -> dict:
         label = cond if key in CONDITIONS else f"{cond}, baselines on a {key.rsplit('_', 1)[1]} of frames"
         rows[f"refined ({label})"] = _metrics(refined[key], gt, mask)
 
-    score = lambda cand: _batched(lambda c, r: examiner(c, r), cand, ref).numpy()  # noqa: E731
+    score = lambda cand, reference=ref: _batched(lambda c, r: examiner(c, r), cand, reference).numpy()  # noqa: E731
     scores = {"GT": score(gt), "coarse": score(coarse), **{f"refined ({c})": score(refined[c]) for c in CONDITIONS}}
     labels = np.r_[np.ones(len(gt)), np.zeros(len(gt))]
     auc = auroc(torch.from_numpy(np.r_[scores["GT"], scores["coarse"]]), torch.from_numpy(labels))
     near = examiner_batch(TripletSet.load(triplet_paths(corpus)["heldout"]).nearby("test", FitConfig().k_max))
-    near_scores = [_batched(lambda c, r: examiner(c, r), cand, near.reference).numpy() for cand in (near.gt, near.coarse)]
+    near_scores = [score(cand, near.reference) for cand in (near.gt, near.coarse)]
     auc_near = auroc(torch.from_numpy(np.concatenate(near_scores)),
                      torch.from_numpy(np.r_[np.ones(len(near.gt)), np.zeros(len(near.gt))]))
 

@@ -8,9 +8,8 @@ import torch.nn.functional as F
 from trioman.toolkit.examiner.model import PatchLogits
 
 
-def examiner_loss(logits: PatchLogits, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
-    """BCE(score, target) with score = sum_n softmax(w)_n sigmoid(s)_n; logits [B, N], target [B];
-    the mean over pairs, or with ``weight`` [B] the weighted sum divided by the weights' sum.
+def examiner_loss(logits: PatchLogits, target: torch.Tensor) -> torch.Tensor:
+    """Mean BCE(score, target) with score = sum_n softmax(w)_n sigmoid(s)_n; logits [B, N], target [B].
 
     Computed in log space (log score = logsumexp(log_softmax(w) + logsigmoid(s)), and the same with
     -s for 1 - score), so it equals ``F.binary_cross_entropy(score, target)`` without its clamp and
@@ -18,10 +17,7 @@ def examiner_loss(logits: PatchLogits, target: torch.Tensor, weight: torch.Tenso
     """
     if target.ndim != 1 or target.shape[0] != logits.scores.shape[0]:
         raise ValueError(f"target: expected shape [{logits.scores.shape[0]}], got {list(target.shape)}")
-    if weight is not None and (weight.shape != target.shape or not bool((weight >= 0).all()) or not float(weight.sum()) > 0):
-        raise ValueError(f"weight: expected {list(target.shape)} non-negative values with a positive sum, got {list(weight.shape)}")
     log_w = logits.weights.log_softmax(dim=-1)
     log_p = torch.logsumexp(log_w + F.logsigmoid(logits.scores), dim=-1)  # log score
     log_q = torch.logsumexp(log_w + F.logsigmoid(-logits.scores), dim=-1)  # log (1 - score)
-    bce = -(target * log_p + (1 - target) * log_q)
-    return bce.mean() if weight is None else (weight * bce).sum() / weight.sum()
+    return -(target * log_p + (1 - target) * log_q).mean()

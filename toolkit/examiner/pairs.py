@@ -19,13 +19,11 @@ PAIRINGS = ("contrast", "paper")
 
 
 class ExaminerPairs(NamedTuple):
-    """(candidate, reference) pairs [P, 3, H, W], their target similarity [P] in {0, 1} and loss
-    weights [P] (summing to the number of samples)."""
+    """(candidate, reference) pairs [2B, 3, H, W] and their target similarity [2B] in {0, 1}."""
 
     candidate: torch.Tensor
     reference: torch.Tensor
     target: torch.Tensor
-    weight: torch.Tensor
 
 
 def check_batch(batch: ExaminerBatch) -> None:
@@ -49,13 +47,13 @@ def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "con
 
     ``pairing="paper"``: 2B pairs, the identical one of every sample (first B rows) and, with equal
     probability (coin flips from ``rng``), its real or its coarse pair (last B rows); over many draws
-    1/2 identical, 1/4 real, 1/4 coarse, weight 1 each.
+    1/2 identical, 1/4 real, 1/4 coarse.
     ``pairing="contrast"`` (default): 2B pairs, every sample's real pair (first B rows) and coarse
-    pair (last B rows), weight 1 each: the two frames meet the same reference in the same step.
+    pair (last B rows): the two frames meet the same reference in the same step.
     Measured on the synthetic corpus (``trioman bench models``, held-out subjects, paper's pairs):
     the paper's draw left our from-scratch Examiner at the 3:1 prior (constant score, AUROC 0.51);
     identical + real + coarse per sample, class-balanced, learned but generalised worse (0.65) than
-    real + coarse alone (0.94): identical pairs teach "candidate equals reference", which no real
+    real + coarse alone (0.77): identical pairs teach "candidate equals reference", which no real
     frame at another time does.
     """
     check_batch(batch)
@@ -63,11 +61,10 @@ def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "con
         raise ValueError(f"pairing: expected one of {PAIRINGS}, got {pairing!r}")
     b, dev, dt = batch.gt.shape[0], batch.gt.device, batch.gt.dtype
     ref = batch.reference
-    ones = torch.ones(2 * b, dtype=dt, device=dev)
     if pairing == "contrast":
         target = torch.cat([torch.ones(b), torch.zeros(b)]).to(dev, dt)
-        return ExaminerPairs(torch.cat([batch.gt, batch.coarse]), torch.cat([ref, ref]), target, ones)
+        return ExaminerPairs(torch.cat([batch.gt, batch.coarse]), torch.cat([ref, ref]), target)
     use_real = torch.rand(b, generator=rng) < 0.5  # [B]
     chosen = torch.where(use_real.to(dev)[:, None, None, None], batch.gt, batch.coarse)
     target = torch.cat([torch.ones(b), use_real.float()]).to(dev, dt)
-    return ExaminerPairs(torch.cat([ref, chosen]), torch.cat([ref, ref]), target, ones)
+    return ExaminerPairs(torch.cat([ref, chosen]), torch.cat([ref, ref]), target)

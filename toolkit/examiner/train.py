@@ -91,7 +91,7 @@ def train_examiner(
     while step < config.steps:
         pairs = sample_pairs(next(batches), rng, config.pairing)
         upper, _ = model.branch_logits(pairs.candidate, pairs.reference)
-        loss = examiner_loss(upper, pairs.target, pairs.weight)
+        loss = examiner_loss(upper, pairs.target)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

@@ -20,19 +20,6 @@ def test_loss_is_bce_on_the_score():
     torch.testing.assert_close(examiner_loss(logits, target), expected)
 
 
-def test_weighted_loss_is_weighted_bce():
-    g = torch.Generator().manual_seed(1)
-    logits = PatchLogits(torch.randn(4, 7, generator=g), torch.randn(4, 7, generator=g))
-    target = torch.tensor([1.0, 1.0, 0.0, 0.0])
-    weight = torch.tensor([0.25, 0.25, 0.5, 2.0])
-    per_pair = F.binary_cross_entropy(logits.score(), target, reduction="none")
-    torch.testing.assert_close(examiner_loss(logits, target, weight), (weight * per_pair).sum() / weight.sum())
-    torch.testing.assert_close(examiner_loss(logits, target, torch.ones(4)), examiner_loss(logits, target))
-    for bad in (torch.ones(3), torch.tensor([1.0, -1.0, 1.0, 1.0]), torch.zeros(4)):
-        with pytest.raises(ValueError, match="weight: expected"):
-            examiner_loss(logits, target, bad)
-
-
 def test_loss_is_finite_for_saturated_scores():
     scores = torch.full((2, 4), 80.0, requires_grad=True)
     logits = PatchLogits(scores, torch.zeros(2, 4))

@@ -26,7 +26,6 @@ def test_pairs_follow_the_paper():
         assert (identical | coarse | real).all()
         assert identical[:16].all()  # one identical pair per sample, first
         assert (pairs.target[identical] == 1).all() and (pairs.target[real] == 1).all() and (pairs.target[coarse] == 0).all()
-        assert (pairs.weight == 1).all()
         counts["identical"] += int(identical.sum())
         counts["coarse"] += int(coarse.sum())
         counts["real"] += int(real.sum())
@@ -42,7 +41,6 @@ def test_contrast_default_pairs_every_real_and_coarse_frame():
     assert (pairs.reference == 0.5).all()
     torch.testing.assert_close(pairs.candidate[:, 0, 0, 0], torch.tensor([1.0] * 5 + [0.0] * 5))  # real, then coarse
     torch.testing.assert_close(pairs.target, torch.tensor([1.0] * 5 + [0.0] * 5))
-    assert (pairs.weight == 1).all()
     with pytest.raises(ValueError, match="pairing: expected one of"):
         sample_pairs(_batch(2), torch.Generator(), "balanced")
 
