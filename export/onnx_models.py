@@ -99,12 +99,13 @@ class ExportParityError(ExportError):
 
 
 def resolve_checkpoint(ckpt: str | os.PathLike) -> Path:
-    """A checkpoint file itself, or a run folder's latest checkpoint."""
-    from trioman.toolkit.train.checkpoint import latest_checkpoint
+    """A checkpoint file itself, or a run folder's model checkpoint (its validation-selected
+    weights, run/selected.pt, if it has them, else its latest checkpoint)."""
+    from trioman.toolkit.train.checkpoint import model_checkpoint
 
     path = Path(ckpt)
     if path.is_dir():
-        found = latest_checkpoint(path)
+        found = model_checkpoint(path)
         if found is None:
             raise FileNotFoundError(f"{path}: run folder without a checkpoint (no checkpoints/ckpt_*.pt)")
         return found

@@ -162,13 +162,13 @@ def _augment_stages(corpus: Path, onnx_dir: Path, work: Path, frames: int) -> di
 def bench_deploy(args: argparse.Namespace) -> dict:
     from trioman.export.onnx_models import export_onnx
     from trioman.toolkit.corpus import triplet_paths
-    from trioman.toolkit.train.checkpoint import latest_checkpoint
+    from trioman.toolkit.train.checkpoint import model_checkpoint
     from trioman.toolkit.triplets import TripletSet
 
     corpus, models = Path(args.corpus), Path(args.models)
     ckpts = {}
     for key, run in (("refiner", models / "runs" / "refiner_tex_geo"), ("examiner", models / "runs" / "examiner")):
-        ckpts[key] = latest_checkpoint(run) if run.is_dir() else None
+        ckpts[key] = model_checkpoint(run) if run.is_dir() else None
         if ckpts[key] is None:
             raise FileNotFoundError(f"{run}: no trained {key} checkpoint; run `trioman bench models --out {models}` first")
     out = Path(args.out)

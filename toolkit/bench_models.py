@@ -98,6 +98,7 @@ def bench_models(args: argparse.Namespace) -> dict:
             "examiner_auroc_real_vs_coarse": float(auc), "examiner_auroc_real_vs_coarse_nearby": float(auc_near), "score_mean": {k: float(v.mean()) for k, v in scores.items()},
             "training": {k: {"seconds": v["seconds"], "steps": v["fit"]["steps"], "final_loss": v["final_loss"]}
                          for k, v in infos.items()},
+            "examiner_selection": {k: infos["examiner"].get(k) for k in ("selected_step", "validation_auroc")},
             "inference": timing, "figure": str(figure), "threads": torch.get_num_threads()}
 
 
@@ -133,8 +134,13 @@ def models_markdown(r: dict) -> str:
     lines += ["", "Examiner AUROC, real vs coarse frames of the held-out test frames, against a reference:", "",
               f"- the nearest-view training frame (another pose and sequence): **{r['examiner_auroc_real_vs_coarse']:.3f}**",
               f"- a real frame T+k of the same sequence, 0 < |k| <= 4 (the paper's pairs): "
-              f"**{r['examiner_auroc_real_vs_coarse_nearby']:.3f}**", "",
-              "| Examiner score mean | " + " | ".join(r["score_mean"]) + " |",
+              f"**{r['examiner_auroc_real_vs_coarse_nearby']:.3f}**", ""]
+    sel = r.get("examiner_selection") or {}
+    if sel.get("selected_step") is not None:
+        vals = ", ".join(f"{k}: {v:.3f}" for k, v in sel["validation_auroc"].items())
+        lines += [f"Examiner weights of step {sel['selected_step']}, the best AUROC on the held-out training subject "
+                  f"(validation, the paper's pairs on all its frames; by step: {vals}).", ""]
+    lines += ["| Examiner score mean | " + " | ".join(r["score_mean"]) + " |",
               "|---|" + "---|" * len(r["score_mean"]),
               "| | " + " | ".join(f"{v:.3f}" for v in r["score_mean"].values()) + " |", "",
               f"![Examiner score densities]({Path(r['figure']).name})", "",

@@ -95,7 +95,8 @@ def _augment_stage(args: argparse.Namespace, out, run_dir, avatar_dir, progress:
     steps = args.model_steps
     _, refiner = fit_refiner([triplets], out / "models" / "refiner", "tex+geo", FitConfig(steps=steps, split="train"))
     _, examiner = fit_examiner([triplets], out / "models" / "examiner",
-                               fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(args.size, 128), split="train"))
+                               fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(args.size, 128), split="train"),
+                               validation_subjects=0)  # one subject: nothing to validate on
     onnx = out / "onnx"
     report = export_onnx(refiner=refiner["checkpoint"], examiner=examiner["checkpoint"], out=onnx, variants=("fp32", "int8"),
                 calibration=[triplets], size=args.size, overwrite=True)

@@ -1,7 +1,9 @@
 """``trioman train-examiner --corpus DIR --out RUN``: train the Examiner on a synthetic corpus's
 training subjects with the paper's pair targets (toolkit/model_training.py); resumes a run folder.
 ``--pairing paper`` draws the paper's 1/2 identical, 1/4 real, 1/4 coarse pairs at random; the
-default "contrast" gives every sample its real and its coarse pair (toolkit/examiner/pairs.py)."""
+default "contrast" gives every sample its real and its coarse pair (toolkit/examiner/pairs.py).
+``--validation-subjects N`` (default 1) holds the last N training subjects out and keeps the weights
+of the step with the best AUROC on them (run/selected.pt)."""
 
 from __future__ import annotations
 
@@ -18,13 +20,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--pairing", choices=("contrast", "paper"), default="contrast",
                         help="training pairs: every sample's real and coarse pair (default), or the paper's random draw")
+    parser.add_argument("--validation-subjects", type=int, default=1,
+                        help="hold out the last N training subjects and keep the step with the best AUROC on them (0: last step)")
+    parser.add_argument("--validate-every", type=int, default=100, help="steps between validations")
 
 
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.model_training import FitConfig, fit_examiner
 
     fit = FitConfig(steps=args.steps, batch=args.batch, lr=3e-4, crop=None, seed=args.seed, baseline_frames=args.baseline_frames)
-    _, info = fit_examiner(args.corpus, args.out, args.model, fit, args.pairing)
+    _, info = fit_examiner(args.corpus, args.out, args.model, fit, args.pairing, args.validation_subjects, args.validate_every)
     print(f"train-examiner: {info['checkpoint']} ({args.model}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
           f"final loss {info['final_loss']:.4f})")
+    if info.get("selected_step") is not None:
+        best = info["validation_auroc"][str(info["selected_step"])]
+        print(f"train-examiner: kept step {info['selected_step']} (validation AUROC {best:.3f} on {args.validation_subjects} held-out subject(s))")
     return 0

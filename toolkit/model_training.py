@@ -18,7 +18,7 @@ import torch
 
 from trioman.runtime.image_io import atomic_write_text
 from trioman.toolkit.corpus import triplet_paths
-from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, train_examiner
+from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, pair_auroc, train_examiner
 from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, train_refiner
 from trioman.toolkit.triplets import TripletSet, Tuples
 
@@ -153,23 +153,47 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
 
 
 def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
-                 pairing: str = "contrast") -> tuple[torch.nn.Module, dict]:
+                 pairing: str = "contrast", validation_subjects: int = 1, validate_every: int = 100) -> tuple[torch.nn.Module, dict]:
     """Train an Examiner (a registered config name) on the corpus's training subjects (or a list of
     triplet files) into ``run``, at the triplets' size or ``fit.image_size``, with ``pairing``
-    (``sample_pairs``: "contrast" or the paper's random draw)."""
+    (``sample_pairs``: "contrast" or the paper's random draw).
+
+    The last ``validation_subjects`` training subjects (files) are held out of training: every
+    ``validate_every`` steps the AUROC of real vs coarse pairs on all their frames (reference T+k,
+    the paper's pairs) is measured and the model keeps the weights of the best step (run/selected.pt,
+    what export and bench deploy load). 0 trains on every subject and keeps the last step.
+    """
     run = Path(run)
+    files = training_triplets(corpus, fit.baseline_frames)
+    if not isinstance(validation_subjects, int) or not 0 <= validation_subjects < len(files):
+        raise ValueError(f"validation_subjects: must be an integer in [0, {len(files) - 1}] for {len(files)} training "
+                         f"subjects, got {validation_subjects!r}")
+    if not isinstance(validate_every, int) or validate_every < 1:
+        raise ValueError(f"validate_every: must be a positive integer, got {validate_every!r}")
+    record = {**asdict(fit), "pairing": pairing, "validation_subjects": validation_subjects, "validate_every": validate_every}
     previous = _previous(run, fit.steps)
-    data, draw = _sampler(corpus, fit)
+    data, draw = _sampler(files[:len(files) - validation_subjects], fit)
+    validate = None
+    if validation_subjects:
+        held = TripletSet.load(files[-validation_subjects:])
+        if fit.image_size is not None:
+            held = held.resized(fit.image_size)
+        val = examiner_batch(held.nearby(None, fit.k_max, fit.seed))
+        validate = lambda model: pair_auroc(model, val.gt, val.coarse, val.reference)  # noqa: E731
     torch.manual_seed(fit.seed)
     model = create_examiner(name, img_size=data.gt.shape[1])
-    t = time.perf_counter() - _earlier_seconds(run, {**asdict(fit), "pairing": pairing})
+    t = time.perf_counter() - _earlier_seconds(run, record)
 
     def batches():
         while True:
             yield examiner_batch(draw())
 
-    result = train_examiner(model, batches(), ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing), run=run)
-    info = {"model": "examiner", "name": name, "fit": {**asdict(fit), "pairing": pairing}, "config": model.config.to_dict(),
+    every = validate_every if validation_subjects else ExaminerTrainConfig.checkpoint_every
+    result = train_examiner(model, batches(), ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing,
+                                                                  checkpoint_every=every), run=run, validate=validate)
+    info = {"model": "examiner", "name": name, "fit": record, "config": model.config.to_dict(),
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
-            "checkpoint": str(result.checkpoint)}
+            "checkpoint": str(result.selected or result.checkpoint)}
+    if validation_subjects:
+        info.update(selected_step=result.selected_step, validation_auroc={str(k): v for k, v in result.validation.items()})
     return model, _finish(run, info, previous)

@@ -178,11 +178,12 @@ class TripletSet:
             ref[j] = rng.choice(p) if len(p) else i
         return self.take(t, ref)
 
-    def nearby(self, split: str = "test", k_max: int = 4, seed: int = 0) -> Tuples:
-        """Every frame T of ``split`` with a GT frame T+k of its sequence (0 < |k| <= k_max, drawn with
-        ``seed``) as reference: the paper's construction of the Examiner's pairs."""
+    def nearby(self, split: str | None = "test", k_max: int = 4, seed: int = 0) -> Tuples:
+        """Every frame T of ``split`` (None: every frame) with a GT frame T+k of its sequence
+        (0 < |k| <= k_max, drawn with ``seed``) as reference: the paper's construction of the
+        Examiner's pairs."""
         rng = np.random.default_rng(seed)
-        t = np.nonzero(self.split == split)[0]
+        t = np.arange(len(self)) if split is None else np.nonzero(self.split == split)[0]
         ref = np.array([rng.choice(p) if len(p := self.partners(int(i), k_max)) else i for i in t], dtype=np.int64)
         return self.take(t, ref)
 

@@ -60,7 +60,11 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
     info = json.loads((run / "fit.json").read_text())
     assert info["conditions"] == "tex" and info["config"]["image_size"] == 16 and (run / "checkpoints").is_dir()
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex"), "--steps", "2", "--batch", "2"]) == 0
-    assert json.loads((tmp_path / "ex" / "fit.json").read_text())["fit"]["pairing"] == "contrast"
+    info = json.loads((tmp_path / "ex" / "fit.json").read_text())
+    assert info["fit"]["pairing"] == "contrast" and info["fit"]["validation_subjects"] == 1 and info["selected_step"] == 2
+    assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex0"), "--steps", "2", "--batch", "2",
+                 "--validation-subjects", "0"]) == 0
+    assert "selected_step" not in json.loads((tmp_path / "ex0" / "fit.json").read_text())
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "exp"), "--steps", "2", "--batch", "2",
                  "--pairing", "paper"]) == 0
     info = json.loads((tmp_path / "exp" / "fit.json").read_text())
@@ -74,6 +78,7 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
     assert all(np.isfinite(v) for m in r["metrics"].values() for v in m.values())
     assert 0 <= r["examiner_auroc_real_vs_coarse"] <= 1 and 0 <= r["examiner_auroc_real_vs_coarse_nearby"] <= 1 and (tmp_path / "bench" / "examiner_scores.png").is_file()
     assert "Examiner AUROC" in models_markdown(r) and "the paper's pairs" in models_markdown(r)
+    assert r["examiner_selection"]["selected_step"] == 2 and "Examiner weights of step 2" in models_markdown(r)
     again = bench_models(args)  # complete runs are reused, with the timings of the run that trained
     assert again["training"] == r["training"]
 
@@ -88,8 +93,11 @@ def test_training_on_triplet_files_at_another_size(corpus, tmp_path):
         training_triplets([])
     small = TripletSet.load(files).resized(16)
     assert small.gt.shape == (8, 16, 16, 3) and small.mask.shape == (8, 16, 16) and small.gt.dtype == np.uint8
-    model, info = fit_examiner(files, tmp_path / "ex", fit=FitConfig(steps=2, batch=2, crop=None, image_size=16))
-    assert model.config.img_size == 16 and info["fit"]["image_size"] == 16
+    model, info = fit_examiner(files, tmp_path / "ex", fit=FitConfig(steps=2, batch=2, crop=None, image_size=16),
+                               validation_subjects=0)
+    assert model.config.img_size == 16 and info["fit"]["image_size"] == 16 and "selected_step" not in info
+    with pytest.raises(ValueError, match=r"validation_subjects: must be an integer in \[0, 0\] for 1 training subjects, got 1"):
+        fit_examiner(files, tmp_path / "ex1", fit=FitConfig(steps=2, batch=2, crop=None))
     with pytest.raises(ValueError, match="image_size"):
         FitConfig(image_size=20)
 
@@ -116,3 +124,27 @@ def test_resuming_a_run_to_more_steps_keeps_its_total_wall_time(corpus, tmp_path
     assert _earlier_seconds(run, dataclasses.asdict(FitConfig(steps=1000))) == 0.0  # the same run again
     assert _earlier_seconds(run, dataclasses.asdict(FitConfig(steps=2500, batch=8))) == 0.0  # another fit
     assert _earlier_seconds(tmp_path / "none", dataclasses.asdict(fit)) == 0.0
+
+
+def test_examiner_keeps_the_step_validated_best_on_held_out_training_subjects(corpus, tmp_path):
+    """The last training subject is held out; every validate_every steps its AUROC is recorded and the
+    model, fit.json and run/selected.pt (what export and bench deploy load) name the best step."""
+    from trioman.toolkit.examiner import load_examiner, pair_auroc
+    from trioman.toolkit.model_training import examiner_batch, fit_examiner
+    from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, model_checkpoint
+
+    run = tmp_path / "ex"
+    model, info = fit_examiner(corpus, run, fit=FitConfig(steps=4, batch=2, crop=None), validate_every=2)
+    assert info["fit"]["validation_subjects"] == 1 and set(info["validation_auroc"]) == {"2", "4"}
+    best = max(info["validation_auroc"].items(), key=lambda kv: (kv[1], -int(kv[0])))
+    assert info["selected_step"] == int(best[0]) and info["checkpoint"] == str(run / "selected.pt")
+    assert model_checkpoint(run) == run / "selected.pt" and latest_checkpoint(run).name == "ckpt_0000004.pt"
+    assert load_checkpoint(run / "selected.pt")["step"] == info["selected_step"]
+    held = examiner_batch(TripletSet.load([corpus / "triplets" / "all" / "s01.npz"]).nearby(None, 4, 0))
+    reloaded = load_examiner(run / "selected.pt")
+    assert pair_auroc(reloaded, held.gt, held.coarse, held.reference) == pytest.approx(best[1], abs=1e-12)
+    assert pair_auroc(model, held.gt, held.coarse, held.reference) == pytest.approx(best[1], abs=1e-12)
+    with pytest.raises(ValueError, match="validate_every: must be a positive integer, got 0"):
+        fit_examiner(corpus, tmp_path / "ex0", fit=FitConfig(steps=2, batch=2, crop=None), validate_every=0)
+    with pytest.raises(ValueError, match=r"validation_subjects: must be an integer in \[0, 1\]"):
+        fit_examiner(corpus, tmp_path / "ex2", fit=FitConfig(steps=2, batch=2, crop=None), validation_subjects=2)

@@ -3,7 +3,7 @@ its training pairs, loss, training loop, inference choice and AUROC."""
 
 from trioman.toolkit.examiner.inference import Choice, choose
 from trioman.toolkit.examiner.loss import examiner_loss
-from trioman.toolkit.examiner.metrics import auroc
+from trioman.toolkit.examiner.metrics import auroc, pair_auroc
 from trioman.toolkit.examiner.model import (
     EXAMINER_CONFIGS,
     Examiner,
@@ -33,6 +33,7 @@ __all__ = [
     "examiner_loss",
     "export_inputs",
     "load_examiner",
+    "pair_auroc",
     "sample_pairs",
     "train_examiner",
 ]

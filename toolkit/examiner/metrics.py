@@ -1,4 +1,4 @@
-"""AUROC of Examiner scores (rank-based, no sklearn)."""
+"""AUROC of Examiner scores (rank-based, no sklearn), and of a model on real vs coarse pairs."""
 
 from __future__ import annotations
 
@@ -31,3 +31,15 @@ def auroc(scores: torch.Tensor | np.ndarray, labels: torch.Tensor | np.ndarray) 
     ends = np.r_[starts[1:], s.size]
     ranks[order] = np.repeat((starts + ends + 1) / 2.0, ends - starts)
     return float((ranks[pos].sum() - n_pos * (n_pos + 1) / 2.0) / (n_pos * n_neg))
+
+
+@torch.no_grad()
+def pair_auroc(model: torch.nn.Module, gt: torch.Tensor, coarse: torch.Tensor, reference: torch.Tensor,
+               batch: int = 16) -> float:
+    """AUROC of ``model(candidate, reference)`` separating real pairs (gt, reference) from coarse
+    pairs (coarse, reference); each [B, 3, S, S], scored ``batch`` pairs at a time."""
+    def score(cand: torch.Tensor) -> torch.Tensor:
+        return torch.cat([model(cand[i:i + batch], reference[i:i + batch]) for i in range(0, len(cand), batch)])
+
+    n = len(gt)
+    return auroc(torch.cat([score(gt), score(coarse)]), torch.cat([torch.ones(n), torch.zeros(n)]))

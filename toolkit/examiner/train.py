@@ -1,4 +1,5 @@
-"""Train the Examiner from scratch: Adam on the BCE of sampled pairs, seeded, atomic checkpoints."""
+"""Train the Examiner from scratch: Adam on the BCE of sampled pairs, seeded, atomic checkpoints,
+and optional model selection on validation data (the weights of the best validated step are kept)."""
 
 from __future__ import annotations
 
@@ -6,14 +7,15 @@ import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, NamedTuple
+from typing import Any, Callable, Iterable, Iterator, NamedTuple
 
 import torch
 
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from trioman.runtime.image_io import atomic_path
+from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_checkpoint
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,9 @@ class TrainResult(NamedTuple):
     losses: list[float]  # one per step run in this call
     step: int  # the step reached (resumed runs count from their checkpoint)
     checkpoint: Path | None  # the last checkpoint written, if a run folder was given
+    selected_step: int | None = None  # with ``validate``: the step whose weights the model now holds
+    validation: dict[int, float] | None = None  # with ``validate``: {step: value} of every validation
+    selected: Path | None = None  # with ``validate`` and a run folder: run/selected.pt
 
 
 def _batches(data: Iterable[ExaminerBatch]) -> Iterator[ExaminerBatch]:
@@ -66,16 +71,25 @@ def train_examiner(
     data: Iterable[ExaminerBatch],
     config: ExaminerTrainConfig = ExaminerTrainConfig(),
     run: str | os.PathLike | None = None,
+    validate: Callable[[Examiner], float] | None = None,
 ) -> TrainResult:
     """Train ``model`` in place for ``config.steps`` steps on pairs drawn by ``sample_pairs``.
 
     With ``run``, a checkpoint {step, model, config, train, optimizer, rng} is written atomically to
     run/checkpoints every ``checkpoint_every`` steps and at the end, and a run that finds one
     resumes from it (model, optimizer and pair-sampling RNG; ``data`` restarts from its beginning).
+
+    ``validate(model) -> value`` (higher is better, e.g. AUROC on held-out subjects; called in eval
+    mode without gradients) runs at the same steps; the model ends with the weights of the first
+    step of the highest value, which are also written to run/selected.pt (checkpoint format, so
+    ``load_examiner`` and the ONNX export read it) when training ends. The record (values and the
+    selected weights) travels in every checkpoint, so a resumed run selects as an uninterrupted one.
     """
     rng = torch.Generator().manual_seed(config.seed)  # the only randomness of the loop: pair sampling
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     step, saved = 0, None
+    history: dict[int, float] = {}
+    best: tuple[int, dict[str, torch.Tensor]] | None = None  # (step, weights) of the best validation
     found = latest_checkpoint(Path(run)) if run is not None else None
     if found is not None:
         state = load_checkpoint(found)
@@ -85,6 +99,10 @@ def train_examiner(
         optimizer.load_state_dict(state["optimizer"])
         rng.set_state(state["rng"])
         step, saved = int(state["step"]), found
+        if validate is not None and "selection" in state:
+            sel = state["selection"]
+            history = {int(k): float(v) for k, v in sel["validation"].items()}
+            best = (int(sel["step"]), sel["model"])
     model.train()
     losses: list[float] = []
     batches = _batches(data)
@@ -97,7 +115,12 @@ def train_examiner(
         optimizer.step()
         losses.append(loss.item())
         step += 1
-        if run is not None and (step % config.checkpoint_every == 0 or step == config.steps):
+        boundary = step % config.checkpoint_every == 0 or step == config.steps
+        if validate is not None and boundary:
+            history[step] = _validate(model, validate)
+            if best is None or history[step] > history[best[0]]:
+                best = (step, {k: v.detach().clone() for k, v in model.state_dict().items()})
+        if run is not None and boundary:
             state = {
                 "step": step,
                 "model": model.state_dict(),
@@ -105,10 +128,39 @@ def train_examiner(
                 "train": config.to_dict(),
                 "optimizer": optimizer.state_dict(),
                 "rng": rng.get_state(),
+                **({"selection": {"validation": {str(k): v for k, v in history.items()}, "step": best[0], "model": best[1]}}
+                   if best is not None else {}),
             }
             saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
     model.eval()
-    return TrainResult(losses, step, saved)
+    if validate is None:
+        return TrainResult(losses, step, saved)
+    selected = None
+    if best is not None:
+        model.load_state_dict(best[1])
+        if run is not None:
+            selected = _save_selected(Path(run), best[0], best[1], model, config, history[best[0]])
+    return TrainResult(losses, step, saved, best[0] if best else None, history, selected)
+
+
+def _validate(model: Examiner, validate: Callable[[Examiner], float]) -> float:
+    model.eval()
+    with torch.no_grad():
+        value = float(validate(model))
+    model.train()
+    if value != value:  # NaN
+        raise ValueError("validate: returned NaN")
+    return value
+
+
+def _save_selected(run: Path, step: int, weights: dict, model: Examiner, config: ExaminerTrainConfig, value: float) -> Path:
+    """run/selected.pt: the selected weights in checkpoint format (no optimizer), written atomically."""
+    path = run / SELECTED
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        torch.save({"step": step, "model": weights, "config": model.config.to_dict(), "train": config.to_dict(),
+                    "validation": value}, tmp)
+    return path
 
 
 def load_examiner(path: str | os.PathLike, exportable: bool = False) -> Examiner:

@@ -13,6 +13,7 @@ import torch
 from trioman.runtime.image_io import atomic_path
 
 _NAME = re.compile(r"^ckpt_(\d{7})\.pt$")
+SELECTED = "selected.pt"  # run/selected.pt: weights chosen by validation (checkpoint format, no optimizer)
 
 
 def checkpoint_path(run: Path, step: int) -> Path:
@@ -55,3 +56,10 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 def latest_checkpoint(run: Path) -> Path | None:
     found = list_checkpoints(run)
     return found[-1] if found else None
+
+
+def model_checkpoint(run: Path) -> Path | None:
+    """The checkpoint whose weights a run folder's model uses: run/selected.pt (the step chosen by
+    validation, ``train_examiner(validate=...)``) when present, else the latest checkpoint."""
+    selected = Path(run) / SELECTED
+    return selected if selected.is_file() else latest_checkpoint(run)

@@ -76,3 +76,41 @@ def test_bad_train_config_and_empty_data():
         ExaminerTrainConfig(lr=0.0)
     with pytest.raises(ValueError, match="data: yielded no batch"):
         train_examiner(create_examiner(TINY), [], ExaminerTrainConfig(steps=1))
+
+
+def test_validation_keeps_the_first_best_step_and_survives_a_resume(tmp_path):
+    """validate runs every checkpoint_every steps; the model ends with the weights of the first step
+    of the highest value (run/selected.pt holds them), and a resumed run selects the same step."""
+    from trioman.toolkit.train.checkpoint import load_checkpoint, model_checkpoint
+
+    g = torch.Generator().manual_seed(5)
+    data = [synthetic_batch(4, TINY.img_size, g) for _ in range(2)]
+    values = iter([0.6, 0.9, 0.7, 0.9])  # steps 2, 4, 6, 8: step 4 is the first best
+
+    def fresh():
+        torch.manual_seed(0)
+        return create_examiner(TINY)
+
+    cfg = ExaminerTrainConfig(steps=8, seed=2, checkpoint_every=2)
+    model = fresh()
+    result = train_examiner(model, data, cfg, run=tmp_path / "a", validate=lambda m: next(values))
+    assert result.selected_step == 4 and result.validation == {2: 0.6, 4: 0.9, 6: 0.7, 8: 0.9}
+    assert result.selected == tmp_path / "a" / "selected.pt" == model_checkpoint(tmp_path / "a")
+    at_four = fresh()
+    train_examiner(at_four, data, ExaminerTrainConfig(steps=4, seed=2))  # validation changes no training step
+    for key, value in at_four.state_dict().items():
+        torch.testing.assert_close(model.state_dict()[key], value, rtol=0, atol=0)
+        torch.testing.assert_close(load_checkpoint(result.selected)["model"][key], value, rtol=0, atol=0)
+    assert not model.training
+
+    # stopped after step 6, resumed to 8: same record, same selection
+    values = iter([0.6, 0.9, 0.7, 0.9])
+    train_examiner(fresh(), data, ExaminerTrainConfig(steps=6, seed=2, checkpoint_every=2), run=tmp_path / "b",
+                   validate=lambda m: next(values))
+    resumed = fresh()
+    again = train_examiner(resumed, data, cfg, run=tmp_path / "b", validate=lambda m: next(values))
+    assert again.selected_step == 4 and again.validation == result.validation
+    for key, value in model.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="validate: returned NaN"):
+        train_examiner(fresh(), data, ExaminerTrainConfig(steps=2, checkpoint_every=2), validate=lambda m: float("nan"))
