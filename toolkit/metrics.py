@@ -54,6 +54,7 @@ __all__ = [
     "composite_on",
     "evaluate_batch",
     "evaluate_pair",
+    "gaussian_1d",
     "gaussian_window_size",
     "psnr",
     "ssim",
@@ -139,7 +140,8 @@ def gaussian_window_size(sigma: float) -> int:
     return 2 * int(3.5 * sigma + 0.5) + 1
 
 
-def _gaussian_1d(window: int, sigma: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+def gaussian_1d(window: int, sigma: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """[window] normalised Gaussian taps centred on the middle one."""
     x = torch.arange(window, dtype=torch.float64) - (window - 1) / 2.0
     g = torch.exp(-0.5 * (x / sigma) ** 2)
     return (g / g.sum()).to(dtype=dtype, device=device)
@@ -186,7 +188,7 @@ def ssim_map(
     m_p = pred.mean(dim=(2, 3), keepdim=True).detach()
     m_g = gt.mean(dim=(2, 3), keepdim=True).detach()
     pc, gc = pred - m_p, gt - m_g
-    g = _gaussian_1d(window, float(sigma), pred.dtype, pred.device)
+    g = gaussian_1d(window, float(sigma), pred.dtype, pred.device)
     stack = torch.cat((pc, gc, pc * pc, gc * gc, pc * gc))  # [5B, C, H', W']
     stack = F.conv2d(stack, g.view(1, 1, window, 1).expand(C, 1, window, 1), groups=C)
     stack = F.conv2d(stack, g.view(1, 1, 1, window).expand(C, 1, 1, window), groups=C)

@@ -128,6 +128,9 @@ def test_named_configs_validate_and_build():
         ("dual_dims", (15, 8)),  # 15 not divisible by dual_heads
         ("conv_kernel", 2),
         ("mlp_ratio", 0.0),
+        ("detail_gain", -1.0),
+        ("detail_gain", float("nan")),
+        ("detail_sigma", 0.0),
     ],
 )
 def test_bad_config_names_the_field(field, value):
@@ -156,3 +159,33 @@ def test_bad_inputs_name_the_field(model):
         model(bad, r)
     with pytest.raises(ValueError, match="reference: expected a float tensor"):
         model(c, (r * 255).to(torch.uint8))
+
+
+def test_detail_input_is_the_image_plus_its_unsharp_detail_layer():
+    """The ViT's input with detail_gain g: (x - 0.5) / 0.5 + g (x - GaussianBlur(x)), against OpenCV's
+    blur (9 taps for sigma 1, edge padding); g = 0 is the plain input, old configs have g = 0."""
+    cv2 = pytest.importorskip("cv2")
+    import numpy as np
+
+    torch.manual_seed(0)
+    config = dataclasses.replace(TINY, detail_gain=8.0, detail_sigma=1.0)
+    model = create_examiner(config).eval()
+    seen = []
+    model.backbone.register_forward_pre_hook(lambda module, args: seen.append(args[0]))
+    x = torch.rand(2, 3, TINY.img_size, TINY.img_size, generator=torch.Generator().manual_seed(3))
+    model.features(x)
+    hwc = x.permute(0, 2, 3, 1).numpy()
+    blur = np.stack([cv2.GaussianBlur(im, (9, 9), 1.0, borderType=cv2.BORDER_REPLICATE) for im in hwc])
+    expected = (hwc - 0.5) / 0.5 + 8.0 * (hwc - blur)
+    np.testing.assert_allclose(seen[0].permute(0, 2, 3, 1).numpy(), expected, atol=1e-5)
+    flat = torch.full_like(x, 0.3)  # a flat image has no detail
+    model.features(flat)
+    torch.testing.assert_close(seen[1], (flat - 0.5) / 0.5)
+    plain = create_examiner(TINY)
+    plain.backbone.register_forward_pre_hook(lambda module, args: seen.append(args[0]))
+    plain.features(x)
+    torch.testing.assert_close(seen[2], (x - 0.5) / 0.5)
+    assert set(model.state_dict()) == set(plain.state_dict())  # the kernel is derived, not saved
+    d = TINY.to_dict()
+    del d["detail_gain"], d["detail_sigma"]
+    assert ExaminerConfig.from_dict(d).detail_gain == 0.0

@@ -16,9 +16,10 @@ onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
 
-def test_exported_examiner_matches_torch_on_another_batch_size():
+@pytest.mark.parametrize("detail_gain", [0.0, 8.0])
+def test_exported_examiner_matches_torch_on_another_batch_size(detail_gain):
     torch.manual_seed(0)
-    model = create_examiner(TINY, exportable=True).eval()
+    model = create_examiner(TINY, exportable=True, detail_gain=detail_gain).eval()
     with torch.no_grad():  # move the heads off their init so the score is not ~0.5 everywhere
         for p in model.parameters():
             p.add_(0.05 * torch.randn_like(p))
