@@ -110,8 +110,9 @@ class ExaminerConfig:
 # Named configurations. examiner_tiny / examiner_small have the backbone layout of timm's
 # vit_tiny_patch16_224 / vit_small_patch16_224, so those checkpoints load (pos_embed resampled), and
 # the plain input pretrained weights expect. examiner_nano is the from-scratch CPU model: its detail
-# input (gain 16) took the held-out AUROC (bench models, 1000 steps, paper's pairs) from 0.83-0.89
-# with the plain input to 0.99; gain 8 gave 0.95, gain 32 0.81-0.94 (less stable).
+# input (gain 16) took the held-out AUROC of ``trioman bench models`` (1000 steps, the step chosen on
+# a validation subject; the paper's pairs) from 0.89 with the plain input to 0.98 (against the
+# nearest-view frame: 0.78 -> 0.94); in trial runs gain 8 gave 0.95 and gain 32 swung 0.81-0.94.
 EXAMINER_CONFIGS: dict[str, ExaminerConfig] = {
     "examiner_nano": ExaminerConfig(patch_size=8, embed_dim=96, depth=4, num_heads=3, dual_dims=(64, 32), detail_gain=16.0),
     "examiner_tiny": ExaminerConfig(),
