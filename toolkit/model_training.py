@@ -145,7 +145,7 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
     model = create_refiner(cfg, seed=fit.seed)
     t = time.perf_counter() - _earlier_seconds(run, asdict(fit))
     result = train_refiner(model, lambda step: refiner_batch(draw()), RefinerTrainConfig(steps=fit.steps, lr=fit.lr),
-                           run=run, lpips=lpips)
+                           run=run, lpips=lpips, progress=True)
     info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(),
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
             "checkpoint": str(result.checkpoint)}
@@ -190,7 +190,8 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
 
     every = validate_every if validation_subjects else ExaminerTrainConfig.checkpoint_every
     result = train_examiner(model, batches(), ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing,
-                                                                  checkpoint_every=every), run=run, validate=validate)
+                                                                  checkpoint_every=every), run=run, validate=validate,
+                            progress=True)
     info = {"model": "examiner", "name": name, "fit": record, "config": model.config.to_dict(),
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
             "checkpoint": str(result.selected or result.checkpoint)}

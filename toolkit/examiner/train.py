@@ -10,11 +10,12 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, NamedTuple
 
 import torch
+from tqdm import tqdm
 
+from trioman.runtime.image_io import atomic_path
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.runtime.image_io import atomic_path
 from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_checkpoint
 
 
@@ -72,8 +73,10 @@ def train_examiner(
     config: ExaminerTrainConfig = ExaminerTrainConfig(),
     run: str | os.PathLike | None = None,
     validate: Callable[[Examiner], float] | None = None,
+    progress: bool = False,
 ) -> TrainResult:
-    """Train ``model`` in place for ``config.steps`` steps on pairs drawn by ``sample_pairs``.
+    """Train ``model`` in place for ``config.steps`` steps on pairs drawn by ``sample_pairs``;
+    ``progress`` shows a bar with the loss and the last validation (on a terminal only).
 
     With ``run``, a checkpoint {step, model, config, train, optimizer, rng} is written atomically to
     run/checkpoints every ``checkpoint_every`` steps and at the end, and a run that finds one
@@ -106,6 +109,7 @@ def train_examiner(
     model.train()
     losses: list[float] = []
     batches = _batches(data)
+    bar = tqdm(total=config.steps, initial=step, desc="examiner", unit="step", disable=None if progress else True)
     while step < config.steps:
         pairs = sample_pairs(next(batches), rng, config.pairing)
         upper, _ = model.branch_logits(pairs.candidate, pairs.reference)
@@ -115,6 +119,8 @@ def train_examiner(
         optimizer.step()
         losses.append(loss.item())
         step += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{losses[-1]:.4f}", **({"val": f"{history[max(history)]:.3f}"} if history else {}))
         boundary = step % config.checkpoint_every == 0 or step == config.steps
         if validate is not None and boundary:
             history[step] = _validate(model, validate)
@@ -132,6 +138,7 @@ def train_examiner(
                    if best is not None else {}),
             }
             saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
+    bar.close()
     model.eval()
     if validate is None:
         return TrainResult(losses, step, saved)

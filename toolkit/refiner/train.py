@@ -15,6 +15,7 @@ from typing import Any, Callable, NamedTuple
 
 import torch
 from torch import nn
+from tqdm import tqdm
 
 from trioman.toolkit.refiner.backbones import create_refiner
 from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inputs, refiner_targets
@@ -81,8 +82,10 @@ def train_refiner(
     config: RefinerTrainConfig = RefinerTrainConfig(),
     run: str | os.PathLike | None = None,
     lpips: nn.Module | None = None,
+    progress: bool = False,
 ) -> TrainResult:
-    """Train ``model`` in place for ``config.steps`` steps, step s on ``batches(s)``.
+    """Train ``model`` in place for ``config.steps`` steps, step s on ``batches(s)``; ``progress``
+    shows a bar with the loss (on a terminal only).
 
     With ``run``, a checkpoint {step, model, config, train, optimizer} is written atomically to
     run/checkpoints every ``checkpoint_every`` steps and at the end, and a run that finds one resumes
@@ -101,9 +104,12 @@ def train_refiner(
         step, saved = int(state["step"]), found
     model.train()
     losses: list[float] = []
+    bar = tqdm(total=config.steps, initial=step, desc="refiner", unit="step", disable=None if progress else True)
     while step < config.steps:
         losses.append(train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip)["total"])
         step += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{losses[-1]:.4f}")
         if run is not None and (step % config.checkpoint_every == 0 or step == config.steps):
             state = {
                 "step": step,
@@ -113,6 +119,7 @@ def train_refiner(
                 "optimizer": optimizer.state_dict(),
             }
             saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
+    bar.close()
     model.eval()
     return TrainResult(losses, step, saved)
 
