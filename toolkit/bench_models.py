@@ -26,7 +26,7 @@ import torch
 
 from trioman.toolkit.bench_render import _best
 from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
-from trioman.toolkit.examiner import auroc
+from trioman.toolkit.examiner import auroc, pair_auroc
 from trioman.toolkit.metrics import evaluate_batch
 from trioman.toolkit.model_training import FitConfig, examiner_batch, fit_examiner, fit_refiner, nchw, refiner_batch
 from trioman.toolkit.refiner import CONDITIONS, refiner_inputs
@@ -79,14 +79,12 @@ def bench_models(args: argparse.Namespace) -> dict:
         label = cond if key in CONDITIONS else f"{cond}, baselines on a {key.rsplit('_', 1)[1]} of frames"
         rows[f"refined ({label})"] = _metrics(refined[key], gt, mask)
 
-    score = lambda cand, reference=ref: _batched(lambda c, r: examiner(c, r), cand, reference).numpy()  # noqa: E731
+    score = lambda cand: _batched(examiner, cand, ref).numpy()  # noqa: E731
     scores = {"GT": score(gt), "coarse": score(coarse), **{f"refined ({c})": score(refined[c]) for c in CONDITIONS}}
     labels = np.r_[np.ones(len(gt)), np.zeros(len(gt))]
     auc = auroc(torch.from_numpy(np.r_[scores["GT"], scores["coarse"]]), torch.from_numpy(labels))
     near = examiner_batch(TripletSet.load(triplet_paths(corpus)["heldout"]).nearby("test", FitConfig().k_max))
-    near_scores = [score(cand, near.reference) for cand in (near.gt, near.coarse)]
-    auc_near = auroc(torch.from_numpy(np.concatenate(near_scores)),
-                     torch.from_numpy(np.r_[np.ones(len(near.gt)), np.zeros(len(near.gt))]))
+    auc_near = pair_auroc(examiner, near.gt, near.coarse, near.reference, batch=8)
 
     one = refiner_batch(test._replace(**{k: getattr(test, k)[:1] for k in test._fields}))
     with torch.no_grad():

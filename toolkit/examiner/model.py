@@ -42,8 +42,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from trioman.toolkit.metrics import gaussian_1d, gaussian_window_size
 from trioman.toolkit.examiner.vit import VisionTransformer, attention, load_timm_weights, read_state_dict
+from trioman.toolkit.metrics import gaussian_1d, gaussian_window_size
 
 
 DUAL_ATTENTION = ("channel", "token")

@@ -4,6 +4,7 @@ and optional model selection on validation data (the weights of the best validat
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -155,7 +156,7 @@ def _validate(model: Examiner, validate: Callable[[Examiner], float]) -> float:
     with torch.no_grad():
         value = float(validate(model))
     model.train()
-    if value != value:  # NaN
+    if math.isnan(value):
         raise ValueError("validate: returned NaN")
     return value
 

@@ -18,6 +18,12 @@ def model():
     return create_examiner(TINY).eval()
 
 
+@pytest.fixture(scope="module")
+def detail_model():
+    torch.manual_seed(0)
+    return create_examiner(TINY, detail_gain=16.0).eval()
+
+
 def test_shapes(model):
     c, r = export_inputs(model, batch=3)
     feats = model.features(c)
@@ -28,8 +34,10 @@ def test_shapes(model):
     assert model(c, r).shape == (3,)
 
 
+@pytest.mark.parametrize("detail", [False, True])
 @pytest.mark.parametrize("kind", ["black", "white", "noise", "saturated", "out_of_range"])
-def test_scores_are_finite_and_in_unit_interval(model, kind):
+def test_scores_are_finite_and_in_unit_interval(model, detail_model, kind, detail):
+    model = detail_model if detail else model
     g = torch.Generator().manual_seed(1)
     shape = (4, 3, TINY.img_size, TINY.img_size)
     images = {
