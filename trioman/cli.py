@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         if cmd.extra is not None:
             require_extra(cmd.name, cmd.extra)
         return int(args._module.run(args) or 0)
-    except (MissingExtraError, ValueError, FileNotFoundError, FileExistsError) as err:
+    except (MissingExtraError, ValueError, FileNotFoundError, FileExistsError, FloatingPointError) as err:
         # Expected user-facing failures: one clear line; TRIOMAN_DEBUG=1 shows the traceback.
         if os.environ.get("TRIOMAN_DEBUG"):
             raise

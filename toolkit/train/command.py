@@ -16,6 +16,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also train on this subject folder of pseudo-GT frames (trioman augment --out DIR)")
     parser.add_argument("--extra-weight", type=float, default=None,
                         help="loss weight of the --extra-frames frames (default 1)")
+    aug = parser.add_argument_group("online augmentation (Generator -> Refiner -> Examiner during training)")
+    aug.add_argument("--augment", choices=("coarse", "refined", "examined"), default=None,
+                     help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
+                          "cameras (coarse), refined by --refiner (refined), the best of --per-frame refined candidates "
+                          "by --examiner (examined)")
+    aug.add_argument("--refiner", default=None, metavar="RUN|CKPT|ONNX", help="Refiner: train-refiner run, checkpoint or .onnx")
+    aug.add_argument("--examiner", default=None, metavar="RUN|CKPT|ONNX", help="Examiner: train-examiner run, checkpoint or .onnx")
+    aug.add_argument("--per-frame", type=int, default=None, help="Generator candidates per source frame (default 2 with an Examiner, else 1)")
+    aug.add_argument("--threshold", type=float, default=None, help="drop the Examiner's best candidate below this score")
+    aug.add_argument("--augment-start", type=float, default=None, help="fraction of iterations on real frames only first (default 0.4)")
+    aug.add_argument("--augment-refresh", type=int, default=None, help="steps between rebuilds of the pseudo-GT pool (default 100)")
+    aug.add_argument("--augment-pool", type=int, default=None, help="pseudo-GT frames per rebuild (default 8)")
+    aug.add_argument("--augment-share", type=float, default=None, help="share of steps after the warm-up on pseudo-GT frames (default 0.5)")
+    aug.add_argument("--augment-weight", type=float, default=None, help="loss weight of a pseudo-GT frame (default 1)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -39,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
         if args.extra_frames is None:
             raise ValueError("--extra-weight: needs --extra-frames")
         overrides["extra_weight"] = args.extra_weight
+    augment = augment_config(args)
+    if augment is not None:
+        overrides["augment"] = augment
     cfg = preset(args.preset, **overrides)
     lpips = load_lpips_or_say_why("train")
     run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet, lpips=lpips)
@@ -54,3 +71,28 @@ def load_lpips_or_say_why(command: str):
     if model is None:
         print(f"{command}: {NOT_FOUND_MESSAGE}")
     return model
+
+
+_AUGMENT_FLAGS = {"refiner": "refiner", "examiner": "examiner", "per_frame": "per_frame", "threshold": "threshold",
+                  "augment_start": "start", "augment_refresh": "refresh", "augment_pool": "pool",
+                  "augment_share": "share", "augment_weight": "weight"}
+
+
+def augment_config(args: argparse.Namespace):
+    """The AugmentConfig of --augment and its options (paths made absolute), or None without --augment."""
+    from pathlib import Path
+
+    from trioman.toolkit.train.augmentation import AugmentConfig
+
+    flags = [flag for flag in _AUGMENT_FLAGS if getattr(args, flag) is not None]
+    if args.augment is None:
+        if flags:
+            raise ValueError(f"--{flags[0].replace('_', '-')}: needs --augment coarse|refined|examined")
+        return None
+    given = {_AUGMENT_FLAGS[flag]: getattr(args, flag) for flag in flags}
+    for key in ("refiner", "examiner"):
+        if key in given:
+            if not Path(given[key]).exists():
+                raise FileNotFoundError(f"--{key}: not found: {given[key]}")
+            given[key] = str(Path(given[key]).resolve())
+    return AugmentConfig(mode=args.augment, **given)

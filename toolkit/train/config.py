@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from trioman.toolkit.avatar.model import AvatarConfig
+from trioman.toolkit.train.augmentation import AugmentConfig
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,7 @@ class TrainConfig:
     random_background: bool = True
     extra_frames: str | None = None  # a subject folder of pseudo-GT frames (trioman augment) sampled with the frames
     extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
+    augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
     checkpoint_every: int = 250
     keep_checkpoints: int = 2
     seed: int = 0
@@ -69,6 +71,8 @@ class TrainConfig:
         d["weights"] = LossWeights(**d.get("weights", {}))
         avatar = dict(d.get("avatar", {}))
         d["avatar"] = AvatarConfig(**avatar)
+        if d.get("augment") is not None:
+            d["augment"] = AugmentConfig.from_dict(d["augment"])
         d["lr_decay_at"] = tuple(d.get("lr_decay_at", (0.75, 0.95)))
         return cls(**d)
 

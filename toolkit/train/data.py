@@ -33,6 +33,11 @@ class FrameSet:
     def __len__(self) -> int:
         return len(self.indices)
 
+    def sample(self, i: int) -> dict:
+        """Frame i as the training step takes it: images/masks/poses/trans/K/viewmat and its loss weight."""
+        fields = {k: getattr(self, k)[i] for k in ("images", "masks", "poses", "trans", "K", "viewmat")}
+        return {**fields, "weight": 1.0 if self.weights is None else float(self.weights[i])}
+
 
 def load_frames(subject: Subject, split: str | None, scale: float = 1.0, stride: int = 1) -> FrameSet:
     """Load every ``stride``-th frame of ``split`` (train, test or None for all) into memory, resized by ``scale``."""

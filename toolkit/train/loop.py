@@ -18,11 +18,13 @@ from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.metrics import psnr, ssim
 from trioman.toolkit.render import rasterize
+from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.data import FrameSet, join_frames, load_frames
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
+AUGMENT_JSON = "augment.json"  # run/augment.json: the online augmentation's counts and stage times
 
 
 def render(g: Gaussians, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int,
@@ -117,6 +119,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         extra = extra if extra is not None else _extra_subject(cfg, subject)
         frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
     model = GaussianAvatar(subject.body, cfg.avatar)
+    augmenter = None if cfg.augment is None else Augmenter(cfg.augment, subject, frames, cfg.iterations, cfg.seed)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)
     torch_gen = torch.Generator().manual_seed(cfg.seed)
@@ -129,6 +132,8 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         step, seconds = int(state["step"]), float(state["seconds"])
         rng.bit_generator.state = json.loads(state["numpy_rng"])
         torch_gen.set_state(state["torch_rng"])
+        if augmenter is not None:
+            augmenter.load_state_dict(state["augment"])
     log = run / "train_log.csv"
     _trim_log(log, step)
 
@@ -137,7 +142,10 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
             "step": step, "seconds": seconds, "model": model.state_dict(), "optimizer": optimizer.state_dict(),
             "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
             "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
+            **({} if augmenter is None else {"augment": augmenter.state_dict()}),
         }, keep=cfg.keep_checkpoints)
+        if augmenter is not None:
+            atomic_write_text(run / AUGMENT_JSON, json.dumps(augmenter.summary(step), indent=2) + "\n")
         if on_checkpoint is not None:
             on_checkpoint(step, path)
 
@@ -149,7 +157,13 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
             t0 = time.perf_counter()
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(cfg, step)
-            loss, p = _step(model, optimizer, frames, cfg, rng, torch_gen, lpips)
+            if augmenter is not None and augmenter.due(step):
+                augmenter.rebuild(model)
+            if augmenter is not None and augmenter.use_pseudo(step):
+                sample = augmenter.draw()
+            else:
+                sample = frames.sample(int(rng.integers(len(frames))))
+            loss, p = _step(model, optimizer, sample, cfg, torch_gen, lpips)
             step += 1
             done_here += 1
             seconds += time.perf_counter() - t0
@@ -164,21 +178,24 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     return run
 
 
-def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, frames: FrameSet, cfg: TrainConfig,
-          rng: np.random.Generator, torch_gen: torch.Generator, lpips) -> tuple[float, float]:
-    i = int(rng.integers(len(frames)))
+def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict, cfg: TrainConfig,
+          torch_gen: torch.Generator, lpips) -> tuple[float, float]:
+    """One optimisation step on one frame (``FrameSet.sample`` or a pseudo-GT pool frame)."""
     bg = torch.rand(3, generator=torch_gen) if cfg.random_background else torch.ones(3)
-    gt = frames.images[i] + (1 - frames.masks[i])[..., None] * bg  # premultiplied GT over the same colour
-    out = model(frames.poses[i], frames.trans[i])
+    gt = sample["images"] + (1 - sample["masks"])[..., None] * bg  # premultiplied GT over the same colour
+    out = model(sample["poses"], sample["trans"])
     sets = [out.refined] + ([out.plain] if cfg.supervise_plain else [])
-    weight = 1.0 if frames.weights is None else float(frames.weights[i])  # pseudo-GT frames: cfg.extra_weight
+    height, width = gt.shape[:2]
     loss = torch.zeros(())
     pred = None
     for g in sets:
-        img = render(g, frames.viewmat[i], frames.K[i], frames.width, frames.height, bg)
+        img = render(g, sample["viewmat"], sample["K"], width, height, bg)
         pred = img if pred is None else pred
-        loss = loss + weight * photometric(img, gt, cfg, lpips)
+        loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips)
     loss = loss + regularisers(model, out, cfg)
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"train: the loss is not finite ({float(loss)}); the run stops before the update "
+                                 f"(the last checkpoint is intact)")
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()

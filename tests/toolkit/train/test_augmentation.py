@@ -1,0 +1,159 @@
+"""Online augmentation in the avatar's training: every mode trains, resume is exact, bad models give one line."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("anny")
+
+from trioman.cli import main  # noqa: E402
+from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
+from trioman.toolkit.examiner import Examiner, ExaminerConfig  # noqa: E402
+from trioman.toolkit.refiner import RefinerConfig, create_refiner  # noqa: E402
+from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
+from trioman.toolkit.train.augmentation import AugmentConfig  # noqa: E402
+from trioman.toolkit.train.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
+from trioman.toolkit.train.config import TrainConfig  # noqa: E402
+from trioman.toolkit.train.loop import AUGMENT_JSON, train  # noqa: E402
+from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner  # noqa: E402
+
+TINY_AVATAR = AvatarConfig(keep=0.3, triplane_channels=4, triplane_res=16, hidden=32)
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def subject(tmp_path_factory):
+    out = tmp_path_factory.mktemp("subj") / "s"
+    synthesize_subject(SynthConfig(seed=5, size=SIZE, frames=10, texture_size=256), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    """Checkpoints of a tiny tex+geo Refiner and a tiny Examiner, in train_refiner/train_examiner's format."""
+    d = tmp_path_factory.mktemp("models")
+    refiner = create_refiner(RefinerConfig(image_size=SIZE, vae_widths=(8, 8, 8), unet_widths=(8, 16, 16), attention_heads=2,
+                                           conditions="tex+geo"), seed=0)
+    examiner = Examiner(ExaminerConfig(img_size=SIZE, patch_size=8, embed_dim=16, depth=1, num_heads=2, dual_dims=(8,),
+                                       dual_heads=2, head_hidden=8))
+    paths = {"refiner": d / "refiner.pt", "examiner": d / "examiner.pt"}
+    for name, m in (("refiner", refiner), ("examiner", examiner)):
+        torch.save({"step": 0, "model": m.state_dict(), "config": m.config.to_dict()}, paths[name])
+    return paths
+
+
+def losses(run) -> np.ndarray:
+    with open(run / "train_log.csv") as f:
+        return np.array([float(r["loss"]) for r in csv.DictReader(f)])
+
+
+def augment_cfg(mode: str, models, **kw) -> AugmentConfig:
+    paths = {"coarse": {}, "refined": {"refiner": str(models["refiner"])},
+             "examined": {"refiner": str(models["refiner"]), "examiner": str(models["examiner"])}}[mode]
+    return AugmentConfig(mode=mode, start=0.25, refresh=10, pool=2, **paths, **kw)
+
+
+@pytest.mark.parametrize("mode", ["coarse", "refined", "examined"])
+def test_each_mode_trains_on_pseudo_frames_and_lowers_the_loss(subject, models, tmp_path, mode):
+    cfg = TrainConfig(iterations=40, lr=1e-2, random_background=False, checkpoint_every=40, avatar=TINY_AVATAR,
+                      augment=augment_cfg(mode, models))
+    run = train(subject, tmp_path / mode, cfg, progress=False)
+    loss = losses(run)
+    assert len(loss) == 40 and np.all(np.isfinite(loss))
+    assert loss[-10:].mean() < 0.8 * loss[:10].mean(), (loss[:10].mean(), loss[-10:].mean())
+    summary = json.loads((run / AUGMENT_JSON).read_text())
+    assert summary["mode"] == mode and summary["start_step"] == 10 and summary["rebuilds"] == 3
+    assert summary["kept"] == 6 and 0 < summary["pseudo_steps"] < 30
+    assert summary["candidates"] == 6 * (2 if mode == "examined" else 1)
+    # What a mode does not need is never run.
+    used = {k for k, v in summary["seconds"].items() if v > 0}
+    assert used == {"coarse": {"generate", "render"}, "refined": {"generate", "render", "normal", "refine"},
+                    "examined": {"generate", "render", "normal", "refine", "examine"}}[mode]
+    saved = json.loads((run / "config.json").read_text())
+    assert TrainConfig.from_dict(saved["train"]) == cfg
+
+
+def test_resume_of_an_augmented_run_matches_an_uninterrupted_run(subject, models, tmp_path):
+    cfg = TrainConfig(iterations=12, checkpoint_every=4, avatar=TINY_AVATAR,
+                      augment=AugmentConfig(mode="examined", refiner=str(models["refiner"]), examiner=str(models["examiner"]),
+                                            start=0.25, refresh=5, pool=2, share=0.6))
+    straight = train(subject, tmp_path / "a", cfg, progress=False)
+    broken = train(subject, tmp_path / "b", cfg, progress=False, stop_after=6)  # killed between refreshes
+    train(subject, broken, cfg, resume=True, progress=False)
+    a, b = load_checkpoint(list_checkpoints(straight)[-1]), load_checkpoint(list_checkpoints(broken)[-1])
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(losses(straight), losses(broken), atol=1e-6)
+    sa, sb = (json.loads((r / AUGMENT_JSON).read_text()) for r in (straight, broken))
+    assert {k: sa[k] for k in ("rebuilds", "pseudo_steps", "kept")} == {k: sb[k] for k in ("rebuilds", "pseudo_steps", "kept")}
+
+
+def test_examiner_threshold_drops_candidates_and_training_goes_on(subject, models, tmp_path):
+    cfg = TrainConfig(iterations=12, checkpoint_every=12, avatar=TINY_AVATAR,
+                      augment=augment_cfg("examined", models, threshold=1.0))  # nothing reaches a score of 1
+    run = train(subject, tmp_path / "t", cfg, progress=False)
+    summary = json.loads((run / AUGMENT_JSON).read_text())
+    assert summary["kept"] == 0 and summary["dropped"] == 2 and summary["pseudo_steps"] == 0
+    assert np.all(np.isfinite(losses(run)))
+
+
+def test_config_errors_name_the_option():
+    with pytest.raises(ValueError, match="refiner: --augment refined needs a Refiner"):
+        AugmentConfig(mode="refined")
+    with pytest.raises(ValueError, match="examiner: --augment examined needs an Examiner"):
+        AugmentConfig(mode="examined", refiner="r")
+    with pytest.raises(ValueError, match="per_frame: 2 candidates need an Examiner"):
+        AugmentConfig(mode="coarse", per_frame=2)
+    with pytest.raises(ValueError, match="augment_share"):
+        AugmentConfig(share=0.0)
+    with pytest.raises(ValueError, match="augment: expected one of"):
+        AugmentConfig(mode="fancy")
+    with pytest.raises(ValueError, match="pose_sigma"):
+        AugmentConfig(pose_sigma={"tail": 0.1})
+
+
+def test_bad_model_files_give_one_line_errors(models, tmp_path):
+    with pytest.raises(ValueError, match=r"--refiner: .*config: unknown Refiner config fields"):
+        load_pseudo_refiner(models["examiner"])  # an Examiner given as the Refiner
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match=r"--examiner: .*junk.pt: not a readable checkpoint"):
+        load_pseudo_examiner(junk)
+    with pytest.raises(FileNotFoundError, match="--refiner: not found"):
+        load_pseudo_refiner(tmp_path / "missing")
+    (tmp_path / "empty_run").mkdir()
+    with pytest.raises(FileNotFoundError, match="--examiner: .*empty_run holds no checkpoint"):
+        load_pseudo_examiner(tmp_path / "empty_run")
+    refiner = load_pseudo_refiner(models["refiner"])
+    with pytest.raises(ValueError, match=r"--refiner: .*multiples of 16.*40x24"):
+        refiner.check_size(24, 40, "--refiner")
+
+
+def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, tmp_path):
+    pytest.importorskip("onnx")
+    from trioman.export.onnx_models import export_examiner_onnx, export_refiner_onnx
+
+    export_refiner_onnx(models["refiner"], tmp_path / "r.onnx", size=SIZE)
+    export_examiner_onnx(models["examiner"], tmp_path / "e.onnx")
+    torch_r, onnx_r = load_pseudo_refiner(models["refiner"]), load_pseudo_refiner(tmp_path / "r.onnx")
+    torch_e, onnx_e = load_pseudo_examiner(models["examiner"]), load_pseudo_examiner(tmp_path / "e.onnx")
+    rng = np.random.default_rng(0)
+    coarse, ref, normal = (rng.random((2, SIZE, SIZE, 3), dtype=np.float32) for _ in range(3))
+    np.testing.assert_allclose(onnx_r.refine(coarse, ref, normal), torch_r.refine(coarse, ref, normal), atol=1e-3)
+    np.testing.assert_allclose(onnx_e.score(coarse, ref[0]), torch_e.score(coarse, ref[0]), atol=1e-4)
+    with pytest.raises(ValueError, match=r"--refiner: .*r.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
+        onnx_r.check_size(64, 64, "--refiner")
+
+
+def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys):
+    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--refiner", "r.pt"]) == 1
+    assert "--refiner: needs --augment" in capsys.readouterr().err
+    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined"]) == 1
+    assert "refiner: --augment refined needs a Refiner" in capsys.readouterr().err
+    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined", "--refiner",
+                 str(tmp_path / "nope.pt")]) == 1
+    assert "--refiner: not found" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # nothing written before the inputs are checked

@@ -1,0 +1,152 @@
+"""The Refiner and Examiner behind one interface for online augmentation, loaded from a training run
+folder, a checkpoint (.pt) or an exported ONNX file (.onnx).
+
+Both sides take and return numpy HWC float32 images in [0, 1], as the runtime's ONNX wrappers
+(``trioman.runtime.models``) do, so training and ``trioman augment`` feed the models the same way:
+
+    refiner.refine(coarse [B, H, W, 3], reference [B, H, W, 3] | None, normal [B, H, W, 3] | None) -> [B, H, W, 3]
+    examiner.score(candidates [B, H, W, 3], real [H, W, 3]) -> [B] scores in [0, 1]
+
+``refiner.conditions`` says which inputs it reads ("none": coarse; "tex": + reference; "tex+geo":
++ normal). The Examiner resizes to its own input size with cv2.INTER_AREA (as the runtime does).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+import torch
+
+from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint
+
+
+class PseudoRefiner(Protocol):
+    conditions: str
+
+    def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray: ...
+
+
+class PseudoExaminer(Protocol):
+    def score(self, candidate: np.ndarray, reference: np.ndarray) -> np.ndarray: ...
+
+
+def _nchw(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(np.asarray(x, dtype=np.float32).transpose(0, 3, 1, 2)))
+
+
+class TorchRefiner:
+    """A trained torch Refiner with the runtime's ``refine`` signature (eval mode, no grad)."""
+
+    def __init__(self, model: torch.nn.Module, path: Path) -> None:
+        self.model, self.path = model.eval(), path
+        self.conditions: str = model.config.conditions
+        self.multiple: int = model.config.total_downsample
+
+    def check_size(self, height: int, width: int, flag: str) -> None:
+        if height % self.multiple or width % self.multiple:
+            raise ValueError(f"{flag}: {self.path} (Refiner) needs image sides that are multiples of {self.multiple}, "
+                             f"the training frames are {width}x{height} (W x H); change --image-scale")
+
+    @torch.no_grad()
+    def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray:
+        args = [_nchw(coarse)] + [None if x is None else _nchw(x) for x in (reference, normal)]
+        out = self.model(*args)[:, 0]  # [B, 3, H, W]: the refined coarse view
+        return out.clamp(0, 1).permute(0, 2, 3, 1).numpy()
+
+
+class OnnxRefiner:
+    """An exported Refiner (``trioman export onnx``): fixed image size."""
+
+    def __init__(self, path: Path) -> None:
+        from trioman.runtime.models import load_model
+
+        self.model, self.path = load_model(path, kind="refiner"), path
+        self.conditions: str = self.model.conditions
+
+    def check_size(self, height: int, width: int, flag: str) -> None:
+        if tuple(self.model.size) != (height, width):
+            h, w = self.model.size
+            raise ValueError(f"{flag}: {self.path} (Refiner ONNX) takes {w}x{h} (W x H) images, the training frames are "
+                             f"{width}x{height}; export it at that size or train at another --image-scale")
+
+    def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray:
+        return self.model.refine(coarse, reference=reference, normal=normal)
+
+
+class TorchExaminer:
+    """A trained torch Examiner with the runtime's ``score`` signature; images resized to its size."""
+
+    def __init__(self, model: torch.nn.Module) -> None:
+        self.model = model.eval()
+        self.side: int = model.config.img_size
+
+    def _prepare(self, x: np.ndarray) -> torch.Tensor:
+        x = np.asarray(x, dtype=np.float32)
+        x = x[None] if x.ndim == 3 else x
+        if x.shape[1:3] != (self.side, self.side):
+            x = np.stack([cv2.resize(np.ascontiguousarray(im), (self.side, self.side), interpolation=cv2.INTER_AREA)
+                          for im in x])
+        return _nchw(x)
+
+    @torch.no_grad()
+    def score(self, candidate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        c, r = self._prepare(candidate), self._prepare(reference)
+        if r.shape[0] == 1 and c.shape[0] > 1:
+            r = r.expand_as(c)
+        return self.model(c, r).numpy()
+
+
+def _checkpoint_of(path: Path, flag: str, kind: str) -> Path:
+    """A run folder's checkpoint (an Examiner run's validated selected.pt first) or the file itself."""
+    if path.is_file():
+        return path
+    if kind == "examiner" and (path / SELECTED).is_file():
+        return path / SELECTED
+    ckpt = latest_checkpoint(path)
+    if ckpt is None:
+        raise FileNotFoundError(f"{flag}: {path} holds no checkpoint (expected a {kind} run folder, a .pt checkpoint "
+                                f"or an exported .onnx)")
+    return ckpt
+
+
+def load_pseudo_refiner(path: str | os.PathLike, flag: str = "--refiner") -> TorchRefiner | OnnxRefiner:
+    """The Refiner at ``path``: a ``train-refiner`` run folder, one of its checkpoints, or an ONNX file."""
+    from trioman.runtime.formats import FormatError
+    from trioman.toolkit.refiner import load_refiner
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{flag}: not found: {path}")
+    try:
+        if path.suffix == ".onnx":
+            return OnnxRefiner(path)
+        ckpt = _checkpoint_of(path, flag, "refiner")
+        return TorchRefiner(load_refiner(ckpt), ckpt)
+    except (FormatError, TypeError, KeyError) as err:
+        raise ValueError(f"{flag}: {path} is not a Refiner ({type(err).__name__}: {err})") from None
+    except ValueError as err:
+        raise ValueError(f"{flag}: {err}") from None
+
+
+def load_pseudo_examiner(path: str | os.PathLike, flag: str = "--examiner") -> TorchExaminer:
+    """The Examiner at ``path``: a ``train-examiner`` run folder, one of its checkpoints, or an ONNX file."""
+    from trioman.runtime.formats import FormatError
+    from trioman.toolkit.examiner.train import load_examiner
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{flag}: not found: {path}")
+    try:
+        if path.suffix == ".onnx":
+            from trioman.runtime.models import load_model
+
+            return load_model(path, kind="examiner")
+        return TorchExaminer(load_examiner(_checkpoint_of(path, flag, "examiner")))
+    except (FormatError, TypeError, KeyError) as err:
+        raise ValueError(f"{flag}: {path} is not an Examiner ({type(err).__name__}: {err})") from None
+    except ValueError as err:
+        raise ValueError(f"{flag}: {err}") from None
