@@ -6,7 +6,8 @@ dense references); ``render`` (the numpy runtime renderer against the torch rast
 the brute-force oracle, and the cost of Gaussians the view does not need); ``models`` (Refiner and
 Examiner trained on a synthetic corpus, evaluated on held-out subjects); ``deploy`` (error against run
 time of the renderer variants, the exported models per precision and optimisation level, and the
-augment loop's stages). Timings are wall clock on
+augment loop's stages); ``ablation`` (the paper's Tables 1 and 2: avatars trained with and without
+online augmentation on held-out subjects). Timings are wall clock on
 the machine named in the report; nothing here is a timed test.
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 
-TARGETS = ("synth", "train", "render", "models", "deploy")
+TARGETS = ("synth", "train", "render", "models", "deploy", "ablation")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="render: a trained run folder (default: the untrained default avatar)")
     parser.add_argument("--corpus", default="out/corpus", help="models: corpus folder, built when absent (default out/corpus)")
     parser.add_argument("--subjects", type=int, default=10, help="models: training subjects when building the corpus")
-    parser.add_argument("--heldout", type=int, default=2, help="models: held-out subjects when building the corpus")
+    parser.add_argument("--heldout", type=int, default=None,
+                        help="models/ablation: held-out subjects when building the corpus (default models 2, ablation 3)")
     parser.add_argument("--refiner-steps", type=int, default=1000, help="models: Refiner training steps per condition")
     parser.add_argument("--refiner-size", choices=("compact", "default"), default="compact", help="models: Refiner widths")
     parser.add_argument("--crop", type=int, default=64, help="models: Refiner training crop side (default 64)")
@@ -45,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=5, help="deploy: timed calls per variant (the best counts)")
     parser.add_argument("--threads", type=int, default=None, help="deploy: onnxruntime intra-op threads (default: ORT's)")
     parser.add_argument("--augment-frames", type=int, default=8, help="deploy: source frames of the augment run")
+    parser.add_argument("--seeds", type=int, default=2, help="ablation: seeds of the baseline and the full system (default 2)")
+    parser.add_argument("--iterations", type=int, default=None, help="ablation: real-frame steps of every avatar run (default 600)")
+    parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
+                        help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
 
 
 def _machine() -> str:
@@ -231,10 +237,14 @@ def run(args: argparse.Namespace) -> int:
     from trioman.runtime.image_io import atomic_write_text
 
     if args.size is None:
-        args.size = 128 if args.target == "models" else 256
-    if args.target in ("models", "deploy"):
+        args.size = 128 if args.target in ("models", "ablation") else 256
+    if args.heldout is None:
+        args.heldout = 3 if args.target == "ablation" else 2
+    if args.target in ("models", "deploy", "ablation"):
         if args.target == "models":
             from trioman.toolkit.bench_models import bench_models as bench, models_markdown as markdown
+        elif args.target == "ablation":
+            from trioman.toolkit.bench_ablation import ablation_markdown as markdown, bench_ablation as bench
         else:
             from trioman.toolkit.bench_deploy import bench_deploy as bench, deploy_markdown as markdown
 
@@ -245,7 +255,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / f"{args.target}.json", json.dumps(report, indent=2) + "\n")
-    md = (markdown(report) if args.target in ("models", "deploy") else
+    md = (markdown(report) if args.target in ("models", "deploy", "ablation") else
           {"synth": _synth_markdown, "train": _train_markdown, "render": _render_markdown}[args.target](report))
     atomic_write_text(out / f"{args.target}.md", md)
     print(md)

@@ -1,0 +1,339 @@
+"""``trioman bench ablation``: the paper's Tables 1 and 2 on held-out synthetic subjects.
+
+The Refiner (one per condition none / tex / tex+geo) and the Examiner are trained on the corpus's
+training subjects (``trioman synth-corpus``); the avatars are trained on the held-out subjects, which
+those models never saw, and evaluated on their test split (novel poses from novel views).
+
+Variants, per held-out subject (``VARIANTS``), all from the quick preset:
+
+    baseline        real frames only, ``iterations`` steps (seeds 0 .. seeds-1)
+    baseline_long   equal-compute control: real frames only, as many steps as an augmented run
+    G               + Generator: online pseudo-GT = the avatar's own coarse renders (--augment coarse)
+    GR_none/tex/tex+geo   + Refiner under each condition (--augment refined)
+    GRE             + Refiner (tex+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
+
+An augmented run takes ``iterations / (start + (1 - start) (1 - share))`` steps, so that it trains on
+as many real frames as the baseline plus its pseudo-GT steps; ``baseline_long`` has that length.
+A finished run (and its evaluation) is reused, so an interrupted benchmark resumes where it stopped.
+
+Also measured: whether the tex+geo Refiner uses its conditions (held-out test triplets refined with
+the true reference and normal map, with another subject's reference, and with a zero normal map).
+Writes ablation.md / ablation.json, a bar chart per subject and one grid of the same test frames
+across variants per subject.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+# (name, augment mode, refiner condition, seeded): the order of the report's rows.
+VARIANTS = (
+    ("baseline", None, None, True),
+    ("baseline_long", None, None, False),
+    ("G", "coarse", None, False),
+    ("GR_none", "refined", "none", False),
+    ("GR_tex", "refined", "tex", False),
+    ("GR_tex+geo", "refined", "tex+geo", False),
+    ("GRE", "examined", "tex+geo", True),
+)
+LABELS = {
+    "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
+    "GR_none": "+ Refinement (without condition)", "GR_tex": "+ Refinement (only tex. condition)",
+    "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GRE": "+ Generator & Refiner & Examiner",
+}
+# The paper's subject 00028 (PSNR dB): Table 1 against the baseline, Table 2 against coarse frames.
+PAPER_TABLE1 = {"baseline": 30.5842, "G": 31.2905, "GR_tex+geo": 32.6586, "GRE": 33.0412}
+PAPER_TABLE2 = {"G": 31.2905, "GR_none": 30.9897, "GR_tex": 32.1369, "GR_tex+geo": 32.6586}
+
+
+@dataclass(frozen=True)
+class AblationPlan:
+    iterations: int = 600  # real-frame steps of every run
+    seeds: int = 2
+    start: float = 0.4
+    share: float = 0.5
+    refresh: int = 50
+    pool: int = 8
+    weight: float = 1.0
+
+    @property
+    def augmented_iterations(self) -> int:
+        return int(round(self.iterations / (self.start + (1 - self.start) * (1 - self.share))))
+
+
+def _variant_runs(plan: AblationPlan) -> list[tuple[str, int]]:
+    return [(name, seed) for name, _, _, seeded in VARIANTS for seed in (range(plan.seeds) if seeded else (0,))]
+
+
+def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Path]):
+    from trioman.toolkit.train.augmentation import AugmentConfig
+    from trioman.toolkit.train.config import preset
+
+    mode, cond = next((m, c) for n, m, c, _ in VARIANTS if n == name)
+    if name == "baseline":
+        return preset("quick", iterations=plan.iterations, seed=seed)
+    iterations = plan.augmented_iterations
+    if mode is None:
+        return preset("quick", iterations=iterations, seed=seed)
+    paths = {}
+    if cond is not None:
+        paths["refiner"] = str(models[f"refiner_{cond}"])
+    if mode == "examined":
+        paths["examiner"] = str(models["examiner"])
+    aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
+                        weight=plan.weight, **paths)
+    return preset("quick", iterations=iterations, seed=seed, augment=aug, checkpoint_every=iterations)
+
+
+def _train_and_evaluate(subject: Path, run: Path, cfg, lpips) -> dict:
+    from trioman.toolkit.corpus import _finished
+    from trioman.toolkit.evaluate import evaluate
+    from trioman.toolkit.train.loop import AUGMENT_JSON, train
+
+    if not _finished(run, cfg.iterations):
+        train(subject, run, cfg, resume=(run / "config.json").exists(), progress=False, lpips=lpips)
+    summary_file = run / "eval_test" / "summary.json"
+    summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
+    if summary is None or summary["step"] != cfg.iterations:
+        summary = evaluate(run, "test", lpips=lpips, progress=False, video=False, grid_frames=3)
+    seconds = float((run / "train_log.csv").read_text().splitlines()[-1].split(",")[1])
+    aug = json.loads((run / AUGMENT_JSON).read_text()) if (run / AUGMENT_JSON).is_file() else None
+    return {"iterations": cfg.iterations, "train_seconds": seconds, **summary["mean"], "augment": aug}
+
+
+def _models(corpus: Path, out: Path, args: argparse.Namespace) -> tuple[dict[str, Path], dict]:
+    from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
+    from trioman.toolkit.refiner import CONDITIONS
+
+    fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop)
+    paths, info = {}, {}
+    for cond in CONDITIONS:
+        run = out / "models" / f"refiner_{cond.replace('+', '_')}"
+        _, info[f"refiner_{cond}"] = fit_refiner(corpus, run, cond, fit, args.refiner_size)
+        paths[f"refiner_{cond}"] = run
+    run = out / "models" / "examiner"
+    _, info["examiner"] = fit_examiner(corpus, run, args.examiner,
+                                       FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None))
+    paths["examiner"] = run
+    return paths, {k: {"seconds": v["seconds"], "steps": v["fit"]["steps"]} for k, v in info.items()}
+
+
+@torch.no_grad()
+def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
+    """Masked PSNR of tex+geo refinement on held-out test triplets with the true conditions, another
+    subject's reference frame, and a zero normal map (a Refiner that uses a condition loses PSNR)."""
+    from trioman.toolkit.bench_models import _batched, _metrics
+    from trioman.toolkit.model_training import nchw, refiner_batch
+    from trioman.toolkit.refiner import load_refiner, refiner_inputs
+    from trioman.toolkit.train.checkpoint import latest_checkpoint
+    from trioman.toolkit.triplets import TripletSet
+
+    model = load_refiner(latest_checkpoint(refiner_run))
+    test = TripletSet.load(heldout).evaluation("test")
+    tb = refiner_batch(test)
+    mask = nchw(test.mask[..., None])
+    other = torch.roll(tb.reference, shifts=len(tb.reference) // len(heldout), dims=0)  # another subject's frame
+
+    def psnr(reference: torch.Tensor, normal: torch.Tensor) -> float:
+        out = _batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), "tex+geo"))[:, 0],
+                       tb.coarse, reference, normal)
+        return _metrics(out, tb.target, mask)["psnr"]
+
+    return {"coarse": _metrics(tb.coarse, tb.target, mask)["psnr"], "true": psnr(tb.reference, tb.normal),
+            "other_subject_reference": psnr(other, tb.normal), "zero_normal": psnr(tb.reference, torch.zeros_like(tb.normal))}
+
+
+def bench_ablation(args: argparse.Namespace) -> dict:
+    from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
+    from trioman.toolkit.train.command import load_lpips_or_say_why
+
+    corpus, out = Path(args.corpus), Path(args.out)
+    if not (corpus / CORPUS_JSON).is_file():
+        build_corpus(corpus, CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size))
+    meta = json.loads((corpus / CORPUS_JSON).read_text())
+    heldout = [s["name"] for s in meta["subjects"] if s["role"] == "heldout"]
+    names = args.ablation_subjects.split(",") if args.ablation_subjects else heldout
+    unknown = sorted(set(names) - set(heldout))
+    if unknown:
+        raise ValueError(f"--ablation-subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
+    plan = AblationPlan(iterations=args.iterations or AblationPlan.iterations, seeds=args.seeds)
+    t0 = time.perf_counter()
+    models, model_info = _models(corpus, out, args)
+    print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
+    lpips = load_lpips_or_say_why("bench ablation")
+    results: dict[str, dict] = {}
+    for name in names:
+        subject = corpus / "subjects" / name
+        results[name] = {}
+        for variant, seed in _variant_runs(plan):
+            t = time.perf_counter()
+            cfg = _train_config(variant, seed, plan, models)
+            r = _train_and_evaluate(subject, out / "runs" / name / f"{variant.replace('+', '_')}_s{seed}", cfg, lpips)
+            results[name].setdefault(variant, {})[str(seed)] = r
+            print(f"bench ablation: {name} {variant} seed {seed}: test PSNR {r['psnr']:.2f} dB "
+                  f"({r['train_seconds']:.0f} s training, {time.perf_counter() - t:.0f} s with evaluation)", flush=True)
+        _grid(subject, out, name, plan)
+    check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus)["heldout"][heldout.index(n)] for n in names])
+    report = {"corpus": str(corpus), "subjects": names, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
+              "results": results, "models": model_info, "condition_check": check, "wall_seconds": time.perf_counter() - t0,
+              "lpips": lpips is not None}
+    report["summary"] = summarise(results)
+    _bar_charts(report, out)
+    return report
+
+
+def _mean_over_seeds(runs: dict[str, dict], key: str) -> float:
+    return float(np.mean([r[key] for r in runs.values()]))
+
+
+def summarise(results: dict[str, dict]) -> dict:
+    """Per variant: the mean over subjects of the seed means (PSNR, SSIM, ...); the baseline and GRE
+    seed spreads (max - min per subject, averaged); the targets' verdicts."""
+    keys = ("psnr", "ssim", "lpips", "psnr_unmasked", "ssim_unmasked")
+    subjects = list(results)
+    variants = [v for v, *_ in VARIANTS if all(v in results[s] for s in subjects)]
+    mean = {v: {k: (float(np.mean([_mean_over_seeds(results[s][v], k) for s in subjects]))
+                    if all(r[k] is not None for s in subjects for r in results[s][v].values()) else None) for k in keys}
+            for v in variants}
+    spread = {v: float(np.mean([np.ptp([r["psnr"] for r in results[s][v].values()]) for s in subjects]))
+              for v in ("baseline", "GRE") if v in variants}
+    p = {v: mean[v]["psnr"] for v in variants}
+    verdict = {}
+    if {"baseline", "GRE"} <= set(p):
+        gain = p["GRE"] - p["baseline"]
+        verdict["full_gain_db"] = gain
+        verdict["full_gain_at_least_1db"] = gain >= 1.0
+        verdict["gain_exceeds_twice_seed_spread"] = gain > 2 * max(spread.values())
+    if {"baseline", "G", "GR_tex+geo", "GRE"} <= set(p):
+        verdict["table1_order_holds"] = p["baseline"] < p["G"] < p["GR_tex+geo"] < p["GRE"]
+    if {"GR_none", "GR_tex", "GR_tex+geo"} <= set(p):
+        verdict["table2_order_holds"] = p["GR_none"] < p["GR_tex"] < p["GR_tex+geo"]
+    return {"mean": mean, "seed_spread_psnr": spread, "verdict": verdict}
+
+
+def _grid(subject: Path, out: Path, name: str, plan: AblationPlan, frames: int = 3) -> Path:
+    """The same test frames across every variant (seed 0): rows = frames, columns = GT + variants."""
+    from trioman.runtime.image_io import write_png
+    from trioman.runtime.preview import contact_sheet
+    from trioman.toolkit.evaluate import load_run, render_frame
+
+    images, labels = [], []
+    runs = [(v, out / "runs" / name / f"{v.replace('+', '_')}_s0") for v, *_ in VARIANTS]
+    loaded = [(v, load_run(r)[0]) for v, r in runs]
+    _, subj, _, _ = load_run(runs[0][1])
+    idx = subj.indices("test")
+    for i in idx[np.linspace(0, len(idx) - 1, frames).astype(int)]:
+        mask = subj.mask(int(i))
+        images.append(subj.image(int(i)) + (1 - mask)[..., None])
+        labels.append(f"GT {subj.frame_names[i]}")
+        for v, model in loaded:
+            images.append(render_frame(model, subj, int(i)))
+            labels.append(v)
+    path = out / f"grid_{name}.png"
+    write_png(path, contact_sheet(images, labels, cols=1 + len(loaded)))
+    return path
+
+
+def _bar_charts(report: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for name, res in report["results"].items():
+        variants = [v for v, *_ in VARIANTS if v in res]
+        means = [_mean_over_seeds(res[v], "psnr") for v in variants]
+        errs = [np.ptp([r["psnr"] for r in res[v].values()]) / 2 for v in variants]
+        fig, ax = plt.subplots(figsize=(7, 3.6), dpi=120)
+        ax.bar(range(len(variants)), means, yerr=errs, capsize=3, color="#4c72b0")
+        ax.set_xticks(range(len(variants)), variants, rotation=20, fontsize=8)
+        lo = min(means) - 1.0
+        ax.set_ylim(lo, max(means) + 0.5)
+        ax.set_ylabel("test PSNR (dB, masked)")
+        ax.set_title(f"Ablation, held-out subject {name} (bars: half the seed range)")
+        ax.grid(axis="y", alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(out / f"ablation_{name}.png")
+        plt.close(fig)
+
+
+def _row(label: str, m: dict, ref: float | None, paper: float | None) -> str:
+    d = "" if ref is None else f"{m['psnr'] - ref:+.2f}"
+    lp = "n/a" if m.get("lpips") is None else f"{m['lpips']:.4f}"
+    return f"| {label} | {m['psnr']:.2f} | {m['ssim']:.4f} | {lp} | {m['psnr_unmasked']:.2f} | {d} | {'' if paper is None else f'{paper:+.2f}'} |"
+
+
+def _tables(per_variant: dict[str, dict]) -> list[str]:
+    head = ["| method | PSNR | SSIM | LPIPS | PSNR unmasked | ours vs first row (dB) | paper 00028 vs first row (dB) |",
+            "|---|---|---|---|---|---|---|"]
+    lines = ["Table 1", ""] + head
+    base = per_variant["baseline"]["psnr"]
+    for v in ("baseline", "G", "GR_tex+geo", "GRE", "baseline_long"):
+        if v in per_variant:
+            paper = PAPER_TABLE1[v] - PAPER_TABLE1["baseline"] if v in PAPER_TABLE1 else None
+            lines.append(_row(LABELS[v], per_variant[v], base, paper))
+    lines += ["", "Table 2", ""] + head
+    coarse = per_variant["G"]["psnr"]
+    for v in ("G", "GR_none", "GR_tex", "GR_tex+geo"):
+        if v in per_variant:
+            label = "Coarse image generation (+ Generator)" if v == "G" else LABELS[v].replace("+ Generator & Refiner (tex.&geo.)",
+                                                                                              "+ Refinement (tex.&geo. condition)")
+            lines.append(_row(label, per_variant[v], coarse, PAPER_TABLE2[v] - PAPER_TABLE2["G"]))
+    return lines + [""]
+
+
+def ablation_markdown(r: dict) -> str:
+    plan = r["plan"]
+    lines = [f"# trioman bench ablation ({len(r['subjects'])} held-out subjects: {', '.join(r['subjects'])})", "",
+             f"Machine: {r.get('machine', 'n/a')}. Corpus `{r['corpus']}`; the Refiners and the Examiner were trained on its "
+             "training subjects only. Test split = novel poses from novel views; PSNR/SSIM under the masked protocol "
+             f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
+             f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
+             f"{plan['augmented_iterations']} steps; pseudo-GT from step {plan['start']:.0%} on, pool of {plan['pool']} "
+             f"rebuilt every {plan['refresh']} steps, {plan['share']:.0%} of later steps on it, weight {plan['weight']}. "
+             f"Seeds 0..{plan['seeds'] - 1} for the baseline and the full system (seed means in the tables).", ""]
+    s = r["summary"]
+    lines += ["## Mean over subjects", ""] + _tables(s["mean"])
+    v = s["verdict"]
+    if "full_gain_db" in v:
+        lines += [f"Full system vs baseline: **{v['full_gain_db']:+.2f} dB** (target >= +1.0 dB: "
+                  f"{'met' if v['full_gain_at_least_1db'] else 'missed'}); seed spread (max - min, mean over subjects): "
+                  + ", ".join(f"{k} {x:.2f} dB" for k, x in s["seed_spread_psnr"].items())
+                  + f"; gain > 2 x spread: {'yes' if v['gain_exceeds_twice_seed_spread'] else 'no'}."]
+    for key, text in (("table1_order_holds", "baseline < + G < + G&R < + G&R&E"), ("table2_order_holds", "none < tex < tex+geo")):
+        if key in v:
+            lines.append(f"Ordering {text}: {'holds' if v[key] else 'does not hold'}.")
+    lines.append("")
+    for name, res in r["results"].items():
+        per = {var: {k: _mean_over_seeds(runs, k) if all(x[k] is not None for x in runs.values()) else None
+                     for k in ("psnr", "ssim", "lpips", "psnr_unmasked")} for var, runs in res.items()}
+        lines += [f"## Subject {name}", ""] + _tables(per)
+        lines += ["| run | seed | steps | test PSNR | training time | pseudo steps | kept / candidates | "
+                  "ms per step: generate / render / normal / refine / examine |", "|---|---|---|---|---|---|---|---|"]
+        for var, runs in res.items():
+            for seed, x in runs.items():
+                a = x["augment"]
+                ms = " / ".join(f"{a['ms_per_step'][k]:.1f}" for k in ("generate", "render", "normal", "refine", "examine")) if a else ""
+                kept = f"{a['kept']} / {a['candidates']}" if a else ""
+                lines.append(f"| {var} | {seed} | {x['iterations']} | {x['psnr']:.2f} | {x['train_seconds'] / 60:.1f} min | "
+                             f"{a['pseudo_steps'] if a else ''} | {kept} | {ms} |")
+        lines += ["", f"![PSNR per variant](ablation_{name}.png)", "", f"![the same test frames across variants](grid_{name}.png)", ""]
+    c = r["condition_check"]
+    lines += ["## Does the tex+geo Refiner use its conditions?", "",
+              "Masked PSNR of held-out test triplets (coarse render at the test pose, nearest-view training frame as reference):", "",
+              "| input | PSNR |", "|---|---|", f"| coarse (no refinement) | {c['coarse']:.2f} |",
+              f"| refined, true reference and normal map | {c['true']:.2f} |",
+              f"| refined, another subject's reference | {c['other_subject_reference']:.2f} ({c['other_subject_reference'] - c['true']:+.2f}) |",
+              f"| refined, zero normal map | {c['zero_normal']:.2f} ({c['zero_normal'] - c['true']:+.2f}) |", "",
+              "| model | steps | training time |", "|---|---|---|"]
+    lines += [f"| {k} | {m['steps']} | {m['seconds'] / 60:.1f} min |" for k, m in r["models"].items()]
+    lines += ["", f"Whole benchmark: {r['wall_seconds'] / 60:.1f} min wall time (finished runs reused); "
+              f"peak resident memory {r.get('peak_rss_mib', 0):.0f} MiB.", ""]
+    return "\n".join(lines)
