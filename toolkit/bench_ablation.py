@@ -25,6 +25,7 @@ across variants per subject.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from dataclasses import dataclass
@@ -77,11 +78,12 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
     from trioman.toolkit.train.config import preset
 
     mode, cond = next((m, c) for n, m, c, _ in VARIANTS if n == name)
+    avatar = dataclasses.replace(preset("quick").avatar, seed=seed)  # a seed draws the initial weights too
     if name == "baseline":
-        return preset("quick", iterations=plan.iterations, seed=seed)
+        return preset("quick", iterations=plan.iterations, seed=seed, avatar=avatar)
     iterations = plan.augmented_iterations
     if mode is None:
-        return preset("quick", iterations=iterations, seed=seed)
+        return preset("quick", iterations=iterations, seed=seed, avatar=avatar)
     paths = {}
     if cond is not None:
         paths["refiner"] = str(models[f"refiner_{cond}"])
@@ -89,7 +91,7 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
         paths["examiner"] = str(models["examiner"])
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
                         weight=plan.weight, **paths)
-    return preset("quick", iterations=iterations, seed=seed, augment=aug, checkpoint_every=iterations)
+    return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
 def _train_and_evaluate(subject: Path, run: Path, cfg, lpips) -> dict:
