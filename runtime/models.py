@@ -71,6 +71,9 @@ def _session(path: Path, optimization: str, threads: int | None) -> Any:
     opts = ort.SessionOptions()
     opts.log_severity_level = 3
     opts.graph_optimization_level = levels[optimization]
+    # No memory pattern: the block it plans for the second run comes on top of the arena chunks the first
+    # run took (twice the activations' memory); without it the arena reuses those chunks.
+    opts.enable_mem_pattern = False
     if threads is not None:
         opts.intra_op_num_threads = threads
     try:

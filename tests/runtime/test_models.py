@@ -89,6 +89,12 @@ def test_refiner_refine_shapes_and_single_vs_batch(models):
     np.testing.assert_allclose(np.clip(raw[:, 0].transpose(0, 2, 3, 1), 0, 1), batch, atol=1e-6)
 
 
+def test_sessions_plan_no_memory_pattern(models):
+    """A memory pattern would allocate a second set of activations on top of the arena's (see _session)."""
+    for path, kind in ((models / "refiner.onnx", "refiner"), (models / "examiner.onnx", "examiner")):
+        assert load_model(path, kind).session.get_session_options().enable_mem_pattern is False
+
+
 def test_refiner_inputs_errors(models):
     m = RefinerModel(models / "refiner.onnx", optimization="basic", threads=1)
     c = images(1)[0]
