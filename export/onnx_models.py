@@ -71,6 +71,12 @@ INT8_MAX_PSNR_DROP_DB = 0.3  # Refiner int8 gate: refined-vs-GT PSNR within this
 INT8_MIN_AGREEMENT = 0.98  # Examiner int8 gate: keep/drop decisions agreeing with fp32's
 KEEP_THRESHOLD = 0.5  # the Examiner decision threshold the gate checks
 VARIANT_PARITY_FRAMES = 8  # int8/fp16 parity with torch (informative, not gated) on this many gate frames
+# Refiner frames per batch when the export runs it on frames (calibration, parity, gate): at most
+# REFINER_BATCH_PIXELS pixels per image and at most REFINER_MAX_BATCH frames. Its activations grow with
+# the pixels of a batch (its cross-view attention with their square per frame); onnxruntime's outputs
+# do not depend on the batch, so neither do the calibration ranges nor the gates.
+REFINER_BATCH_PIXELS = 256 * 256
+REFINER_MAX_BATCH = 8
 VARIANTS = ("fp32", "int8", "fp16")
 # Refiner int8: the ops with weights (and the attention MatMuls) only. Quantizing every op as well
 # (Add, Mul, Sigmoid, InstanceNorm, ...) measured no better accuracy, a larger file and 4x the
@@ -377,7 +383,8 @@ def set_metadata(proto: onnx.ModelProto, meta: dict[str, str]) -> None:
 def _torch_export(model: nn.Module, example: tuple[torch.Tensor, ...], inputs: Sequence[str],
                   outputs: Sequence[str]) -> onnx.ModelProto:
     buffer = io.BytesIO()
-    with warnings.catch_warnings():
+    # no autograd: the trace would keep every activation for a backward pass (the same graph either way)
+    with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice and tracer warnings
         torch.onnx.export(
             model, example, buffer, input_names=list(inputs), output_names=list(outputs), opset_version=OPSET,
@@ -457,13 +464,18 @@ class _Job:
     def parity(self, path: Path, max_frames: int | None = None) -> dict:
         """max |onnxruntime - torch| on random inputs (batch 1 and 3) and on the gate frames (real triplet
         frames when calibration data is given, else synthetic ones; the first ``max_frames`` of them)."""
-        m = rt.load_model(path, self.kind)
         frames = self.data.gate if max_frames is None else Frames(*(a[:max_frames] for a in self.data.gate))
+        random, real = self.random_feeds(), self.real_feeds(frames)
+        # torch first, then the session: only one of them holds a batch's activations at a time
+        want = {id(f): self.torch_run(f) for f in random + real}
+        m = rt.load_model(path, self.kind)
 
         def worst(feeds: list[dict[str, np.ndarray]]) -> float:
-            return float(np.max([np.abs(m.run(**f) - self.torch_run(f)).max() for f in feeds]))  # NaN propagates
+            # the largest batch first: the session's arena then serves the smaller ones from its chunks
+            feeds = sorted(feeds, key=lambda f: -len(next(iter(f.values()))))
+            return float(np.max([np.abs(m.run(**f) - want[id(f)]).max() for f in feeds]))  # NaN propagates
 
-        out = {"random": worst(self.random_feeds()), "frames": worst(self.real_feeds(frames)),
+        out = {"random": worst(random), "frames": worst(real),
                "frames_source": self.data.info["source"], "frame_count": frames.count, "batches": list(PARITY_BATCHES),
                "atol": self.atol}
         out["max_abs"] = float(np.max([out["random"], out["frames"]]))
@@ -539,7 +551,8 @@ class _RefinerJob(_Job):
                                  "frame, body normal map: as many as the conditions use), not normalised; output "
                                  "[B, V, 3, H, W] in (0, 1), views in the order coarse, reference, normal"}
 
-    def feeds(self, frames: Frames, batch: int = 8) -> list[dict[str, np.ndarray]]:
+    def feeds(self, frames: Frames) -> list[dict[str, np.ndarray]]:
+        batch = refiner_frames_per_batch(self.size)
         arrays = {"coarse": frames.coarse, "reference": frames.reference, "normal": frames.normal}
         return [{n: _nchw(arrays[n][i:i + batch]) for n in self.inputs} for i in range(0, frames.count, batch)]
 
@@ -572,12 +585,12 @@ class _RefinerJob(_Job):
         t0 = time.perf_counter()
         pre = path.with_name(path.stem + ".pre.onnx")
         try:
-            with warnings.catch_warnings(), _quiet_logging():
+            with warnings.catch_warnings(), _quiet_logging(), _calibration_without_memory_pattern():
                 warnings.simplefilter("ignore")
                 # ONNX shape inference only: onnxruntime's symbolic shape inference gives up on these graphs
                 # ("Incomplete symbolic shape inference") after seconds of work.
                 quant_pre_process(str(fp32), str(pre), skip_symbolic_shape=True)
-                quantize_static(str(pre), str(path), Reader(self.feeds(self.data.calibration, batch=4)),
+                quantize_static(str(pre), str(path), Reader(self.feeds(self.data.calibration)),
                                 quant_format=QuantFormat.QDQ, per_channel=True, activation_type=QuantType.QUInt8,
                                 weight_type=QuantType.QInt8, op_types_to_quantize=list(REFINER_INT8_OPS))
         finally:
@@ -673,6 +686,30 @@ def decision_agreement(fp32: np.ndarray, other: np.ndarray, threshold: float = K
 
 
 @contextlib.contextmanager
+def _calibration_without_memory_pattern():
+    """onnxruntime's calibration session built with the memory pattern off (as ``runtime.models`` builds
+    its sessions: the pattern's block comes on top of the arena chunks of the first run, twice the
+    activations' memory), for the duration. Otherwise the session onnxruntime builds: no graph
+    optimisation, the calibrator's providers; the same runs, so the same ranges."""
+    import onnxruntime as ort
+    from onnxruntime.quantization.calibrate import CalibraterBase
+
+    def create_inference_session(self) -> None:
+        opts = ort.SessionOptions()
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        opts.enable_mem_pattern = False
+        self.infer_session = ort.InferenceSession(self.augmented_model_path, sess_options=opts,
+                                                  providers=self.execution_providers)
+
+    original = CalibraterBase.create_inference_session
+    CalibraterBase.create_inference_session = create_inference_session
+    try:
+        yield
+    finally:
+        CalibraterBase.create_inference_session = original
+
+
+@contextlib.contextmanager
 def _quiet_logging():
     """Silence the quantization tools' INFO/WARNING logging for the duration."""
     import logging
@@ -716,6 +753,11 @@ def refiner_export_size(config: Any, size: int | Sequence[int] | None, calibrati
         raise ExportError(f"size: (H, W) = {hw} ({origin}) is not a multiple of the Refiner's total downsampling {f}; "
                           f"pass a size that is (--size)")
     return hw
+
+
+def refiner_frames_per_batch(size: tuple[int, int]) -> int:
+    """Frames per Refiner batch at this (H, W): REFINER_BATCH_PIXELS and REFINER_MAX_BATCH."""
+    return max(1, min(REFINER_MAX_BATCH, REFINER_BATCH_PIXELS // (size[0] * size[1])))
 
 
 def _job(kind: str, model_or_ckpt: Any, size: Any, calibration: Sequence[str | os.PathLike] | None, seed: int,

@@ -328,6 +328,25 @@ def test_sizes_and_arguments(corpus, tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+def test_refiner_batches_hold_a_bounded_number_of_pixels():
+    assert [om.refiner_frames_per_batch((s, s)) for s in (32, 64, 128, 256, 512)] == [8, 8, 4, 1, 1]
+    assert om.refiner_frames_per_batch((128, 256)) == 2
+
+
+def test_calibration_session_plans_no_memory_pattern_inside_the_context_only(exported, tmp_path):
+    from onnxruntime.quantization import create_calibrator
+    from onnxruntime.quantization.calibrate import CalibraterBase
+
+    original = CalibraterBase.create_inference_session
+    fp32 = exported[1] / "refiner.onnx"
+    with om._calibration_without_memory_pattern():
+        inside = create_calibrator(fp32, ["Conv"], augmented_model_path=tmp_path / "a.onnx")
+    outside = create_calibrator(fp32, ["Conv"], augmented_model_path=tmp_path / "b.onnx")
+    assert inside.infer_session.get_session_options().enable_mem_pattern is False
+    assert outside.infer_session.get_session_options().enable_mem_pattern is True
+    assert CalibraterBase.create_inference_session is original
+
+
 def test_single_file_export_of_a_module_at_a_non_square_size(tmp_path):
     model = create_refiner(RefinerConfig(**{**REFINER_CFG.to_dict(), "conditions": "tex"}), seed=1)
     entry = om.export_refiner_onnx(model, tmp_path / "r.onnx", size=(16, 24))
