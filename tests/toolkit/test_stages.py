@@ -1,0 +1,38 @@
+"""Per-stage wall time and peak RSS lines."""
+
+import re
+import sys
+
+import numpy as np
+import pytest
+
+from trioman.toolkit.stages import StageLog, reset_peak_rss
+
+LINE = re.compile(r"^stage (\S+) +(\d+\.\d) s +peak RSS +(\d+) MiB")
+MB = 2**20
+
+
+def test_stage_lines_time_and_peak():
+    lines = []
+    log = StageLog(say=lines.append)
+    with log.stage("alloc"):
+        a = np.ones(200 * MB // 8)  # 200 MiB, every page touched
+        del a
+    with log.stage("idle"):
+        pass
+    assert [LINE.match(s).group(1) for s in lines] == ["alloc", "idle"]
+    alloc, idle = log.stages
+    assert alloc.peak_rss >= 200 * MB and alloc.seconds >= 0
+    assert log.peak_rss == alloc.peak_rss and log.seconds == alloc.seconds + idle.seconds
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc on Linux")
+def test_each_stage_has_its_own_peak():
+    log = StageLog(say=lambda line: None)
+    with log.stage("alloc"):
+        a = np.ones(200 * MB // 8)
+        del a
+    with log.stage("idle"):
+        pass
+    assert reset_peak_rss()
+    assert log.stages[1].peak_rss < log.stages[0].peak_rss - 150 * MB
