@@ -18,8 +18,8 @@ A finished run (and its evaluation) is reused, so an interrupted benchmark resum
 
 Also measured: whether the tex+geo Refiner uses its conditions (held-out test triplets refined with
 the true reference and normal map, with another subject's reference, and with a zero normal map).
-Writes ablation.md / ablation.json, a bar chart per subject and one grid of the same test frames
-across variants per subject.
+Writes ablation.md / ablation.json, a bar chart per subject, one grid of the same test frames across
+variants per subject, and the same Generator draws as pseudo-GT through each mode and Refiner.
 """
 
 from __future__ import annotations
@@ -182,6 +182,7 @@ def bench_ablation(args: argparse.Namespace) -> dict:
             print(f"bench ablation: {name} {variant} seed {seed}: test PSNR {r['psnr']:.2f} dB "
                   f"({r['train_seconds']:.0f} s training, {time.perf_counter() - t:.0f} s with evaluation)", flush=True)
         _grid(subject, out, name, plan)
+        _pseudo_examples(subject, out, name, models)
     check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus)["heldout"][heldout.index(n)] for n in names])
     report = {"corpus": str(corpus), "subjects": names, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "wall_seconds": time.perf_counter() - t0,
@@ -240,6 +241,35 @@ def _grid(subject: Path, out: Path, name: str, plan: AblationPlan, frames: int =
             labels.append(v)
     path = out / f"grid_{name}.png"
     write_png(path, contact_sheet(images, labels, cols=1 + len(loaded)))
+    return path
+
+
+@torch.no_grad()
+def _pseudo_examples(subject: Path, out: Path, name: str, models: dict[str, Path], count: int = 4) -> Path:
+    """Pseudo-GT frames of the seed-0 baseline avatar, the same Generator draws through each mode and
+    Refiner: rows = draws, columns = coarse, refined (none / tex / tex+geo), over white."""
+    from trioman.runtime.image_io import write_png
+    from trioman.runtime.preview import contact_sheet
+    from trioman.toolkit.evaluate import load_run
+    from trioman.toolkit.train.augmentation import AugmentConfig, Augmenter
+    from trioman.toolkit.train.data import load_frames
+
+    model, subj, _, _ = load_run(out / "runs" / name / "baseline_s0")
+    frames = load_frames(subj, "train")
+    columns = [("coarse", None)] + [(f"refined ({c})", str(models[f"refiner_{c}"])) for c in ("none", "tex", "tex+geo")]
+    pools = []
+    for _, refiner in columns:
+        aug = Augmenter(AugmentConfig(mode="refined" if refiner else "coarse", refiner=refiner, pool=count, start=0.0),
+                        subj, frames, 1, seed=0)  # the same seed: the same source frames and draws in every column
+        aug.rebuild(model)
+        pools.append(aug.pool)
+    images, labels = [], []
+    for j in range(count):
+        for (label, _), pool in zip(columns, pools):
+            images.append(pool["images"][j].numpy() + (1 - pool["masks"][j].numpy())[..., None])
+            labels.append(label)
+    path = out / f"pseudo_gt_{name}.png"
+    write_png(path, contact_sheet(images, labels, cols=len(columns)))
     return path
 
 
@@ -326,7 +356,8 @@ def ablation_markdown(r: dict) -> str:
                 kept = f"{a['kept']} / {a['candidates']}" if a else ""
                 lines.append(f"| {var} | {seed} | {x['iterations']} | {x['psnr']:.2f} | {x['train_seconds'] / 60:.1f} min | "
                              f"{a['pseudo_steps'] if a else ''} | {kept} | {ms} |")
-        lines += ["", f"![PSNR per variant](ablation_{name}.png)", "", f"![the same test frames across variants](grid_{name}.png)", ""]
+        lines += ["", f"![PSNR per variant](ablation_{name}.png)", "", f"![the same test frames across variants](grid_{name}.png)", "",
+                  f"![pseudo-GT of the baseline avatar: coarse and refined per condition](pseudo_gt_{name}.png)", ""]
     c = r["condition_check"]
     lines += ["## Does the tex+geo Refiner use its conditions?", "",
               "Masked PSNR of held-out test triplets (coarse render at the test pose, nearest-view training frame as reference):", "",

@@ -41,7 +41,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     for text in ("Table 1", "Table 2", "+ Generator & Refiner & Examiner", "equal steps (control)", "paper 00028",
                  "Does the tex+geo Refiner use its conditions", "ms per step"):
         assert text in md, text
-    for name in ("ablation_s02.png", "grid_s02.png"):
+    for name in ("ablation_s02.png", "grid_s02.png", "pseudo_gt_s02.png"):
         assert (out / name).stat().st_size > 0, name
     first = (out / "runs" / "s02" / "GRE_s1" / "checkpoints").iterdir().__next__().stat().st_mtime_ns
     assert main(argv) == 0  # finished runs are reused, not retrained
