@@ -24,12 +24,6 @@ import torch
 from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint
 
 
-class PseudoRefiner(Protocol):
-    conditions: str
-
-    def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray: ...
-
-
 class PseudoExaminer(Protocol):
     def score(self, candidate: np.ndarray, reference: np.ndarray) -> np.ndarray: ...
 
@@ -132,7 +126,7 @@ def load_pseudo_refiner(path: str | os.PathLike, flag: str = "--refiner") -> Tor
         raise ValueError(f"{flag}: {err}") from None
 
 
-def load_pseudo_examiner(path: str | os.PathLike, flag: str = "--examiner") -> TorchExaminer:
+def load_pseudo_examiner(path: str | os.PathLike, flag: str = "--examiner") -> PseudoExaminer:
     """The Examiner at ``path``: a ``train-examiner`` run folder, one of its checkpoints, or an ONNX file."""
     from trioman.runtime.formats import FormatError
     from trioman.toolkit.examiner.train import load_examiner
