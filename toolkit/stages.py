@@ -54,7 +54,6 @@ class StageLog:
     """Times stages and records each one's peak RSS; ``say`` gets one line per finished stage."""
 
     say: Callable[[str], None] = print
-    prefix: str = ""
     stages: list[Stage] = field(default_factory=list)
 
     @contextlib.contextmanager
@@ -64,7 +63,7 @@ class StageLog:
         yield
         s = Stage(name, time.perf_counter() - start, peak_rss_bytes())
         self.stages.append(s)
-        self.say(f"{self.prefix}stage {s.name:<14s} {s.seconds:6.1f} s   peak RSS {mib(s.peak_rss):6.0f} MiB"
+        self.say(f"stage {s.name:<14s} {s.seconds:6.1f} s   peak RSS {mib(s.peak_rss):6.0f} MiB"
                  + ("" if reset else " (since start)"))
 
     @property
