@@ -89,7 +89,7 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
     t_pose = t_render = 0.0
     start = time.perf_counter()
     with VideoWriter(out, fps or motion.fps, (size, size)) as video:
-        for i in tqdm(range(motion.num_frames), desc="animate", unit="frame", disable=not progress):
+        for i in tqdm(range(motion.num_frames), desc="animate", unit="frame", disable=None if progress else True):
             if camera == "orbit":
                 viewmat = orbit_viewmat(center, az0 + 2 * np.pi * i / motion.num_frames, el, distance)
             t0 = time.perf_counter()
