@@ -4,13 +4,26 @@ synth -> train (quick preset) -> eval (test and train splits) -> export the avat
 the runtime (numpy + onnxruntime, no torch), plus a turntable MP4 of the subject's posed mesh ->
 triplets of the trained avatar -> a small Refiner and Examiner trained on the subject's own training
 frames (a demo of the loop; ``trioman bench models`` trains them on a corpus of subjects) -> ONNX
-export (fp32 + int8) -> ``augment`` with the runtime; prints where the report, grid, avatar, videos,
-ONNX models and pseudo-GT frames are.
+export (fp32 + int8) -> ``augment`` with the runtime -> an avatar trained on the training frames plus
+the pseudo-GT frames (``trioman train --extra-frames``), evaluated on the test split like the first.
+
+Each stage prints one line as it ends: its name, wall time and peak resident memory; the run ends
+with where the outputs are, baseline vs augmented test PSNR and the overall peak.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from trioman.toolkit.stages import StageLog
+    from trioman.toolkit.train.config import TrainConfig
+
+
+# int8 calibration frames and parity / gate frames of the ONNX export (the command's default is 32 each)
+EXPORT_FRAMES = 16
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,69 +31,79 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="subject seed (default 0)")
     parser.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
     parser.add_argument("--frames", type=int, default=120, help="subject frames (default 120)")
-    parser.add_argument("--iterations", type=int, default=None, help="override the quick preset's iterations")
-    parser.add_argument("--model-steps", type=int, default=300, help="Refiner and Examiner training steps (default 300)")
+    parser.add_argument("--iterations", type=int, default=800,
+                        help="training iterations of both avatars, quick preset otherwise (default 800)")
+    parser.add_argument("--model-steps", type=int, default=200, help="Refiner and Examiner training steps (default 200)")
     parser.add_argument("--augment-frames", type=int, default=24, help="source frames to augment (default 24)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def say(line: str) -> None:
+    """Print one demo line now (stdout may be a file: ``make demo > log``)."""
+    print(f"demo: {line}", flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
+    from trioman.toolkit.stages import StageLog, mib
+    from trioman.toolkit.train.command import load_lpips_or_say_why
+
+    out = Path(args.out)
+    progress = not args.quiet
+    log = StageLog(say=say)
+    lpips = load_lpips_or_say_why("demo")
+    base = _baseline(args, out, log, lpips, progress)
+    aug = _augment_stage(args, out, base["run"], base["avatar_dir"], log, progress)
+    final = _augmented_avatar(args, out, aug["out"], log, lpips, progress)
+    _report(base, aug, final)
+    say(f"done in {log.seconds:.0f} s; peak RSS {mib(log.peak_rss):.0f} MiB (the highest stage)")
+    return 0
+
+
+def _quick_preset(args: argparse.Namespace, **overrides: Any) -> TrainConfig:
+    """The quick training preset with the demo's ``--iterations``."""
+    from trioman.toolkit.train.config import preset
+
+    return preset("quick", iterations=args.iterations, **overrides)
+
+
+def _baseline(args: argparse.Namespace, out: Path, log: StageLog, lpips, progress: bool) -> dict:
+    """Subject, turntable, baseline avatar, its evaluation, export and animations."""
     import shutil
-    import time
-    from pathlib import Path
 
     from trioman.export.avatar import export_avatar
-    from trioman.export.onnx_models import summary_lines
     from trioman.runtime.animate import animate
     from trioman.runtime.formats.motion import motion_from_spec
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.synth.turntable import write_turntable
-    from trioman.toolkit.train.command import load_lpips_or_say_why
-    from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
 
-    out = Path(args.out)
-    progress = not args.quiet
-    start = time.perf_counter()
     cfg = SynthConfig(seed=args.seed, size=args.size, frames=args.frames)
-    subject = synthesize_subject(cfg, out / "subject", overwrite=True, progress=progress)
-    video = write_turntable(cfg, out / "turntable.mp4", progress=progress)
+    with log.stage("synth"):
+        subject = synthesize_subject(cfg, out / "subject", overwrite=True, progress=progress)
+    with log.stage("turntable"):
+        video = write_turntable(cfg, out / "turntable.mp4", progress=progress)
     shutil.rmtree(out / "run", ignore_errors=True)  # the demo always starts a fresh run
-    train_cfg = preset("quick", **({} if args.iterations is None else {"iterations": args.iterations}))
-    lpips = load_lpips_or_say_why("demo")
-    run_dir = train(subject.root, out / "run", train_cfg, progress=progress, lpips=lpips)
-    test = evaluate(run_dir, "test", lpips=lpips, progress=progress)
-    seen = evaluate(run_dir, "train", lpips=lpips, progress=progress, video=False)
+    train_cfg = _quick_preset(args)
+    with log.stage("train"):
+        run_dir = train(subject.root, out / "run", train_cfg, progress=progress, lpips=lpips)
+    with log.stage("eval test"):
+        test = evaluate(run_dir, "test", lpips=lpips, progress=progress)
+    with log.stage("eval train"):
+        seen = evaluate(run_dir, "train", lpips=lpips, progress=progress, video=False)
     avatar_dir = out / "avatar"
-    avatar, _ = export_avatar(run_dir, avatar_dir, overwrite=True)
-    anims = {name: animate(avatar, motion_from_spec(name, avatar.skeleton), out / f"animate_{name}.mp4",
-                           camera=camera, size=args.size, progress=progress)
-             for name, camera in (("walk", "fixed"), ("wave", "orbit"))}
-    print(f"demo: subject       {subject.root} ({subject.num_frames} frames), contact sheet {subject.root / 'contact_sheet.png'}")
-    print(f"demo: turntable     {video}")
-    print(f"demo: avatar run    {run_dir} ({train_cfg.iterations} iterations, {train_cfg.preset} preset)")
-    for name, s in (("train", seen), ("test", test)):
-        m = s["mean"]
-        print(f"demo: {name:5s} frames  PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.4f} (masked protocol)  "
-              f"report {run_dir / f'eval_{name}' / 'report.md'}")
-    print(f"demo: test grid     {run_dir / 'eval_test' / 'grid.png'}; video {run_dir / 'eval_test' / 'video.mp4'}")
-    print(f"demo: avatar        {avatar_dir} ({avatar.num_gaussians} Gaussians; canonical.ply opens in splat viewers)")
-    for name, r in anims.items():
-        print(f"demo: animation     {r['video']} ({r['frames']} frames, {r['ms_per_frame']:.0f} ms/frame with the numpy runtime)")
-    aug = _augment_stage(args, out, run_dir, avatar_dir, progress)
-    print(f"demo: ONNX models   {aug['onnx']} (report {aug['onnx'] / 'export.json'}):")
-    for line in summary_lines(aug["export"]):
-        print(f"demo:   {line}")
-    s, t = aug["result"]["summary"], aug["result"]["timing"]["ms_per_source_frame"]
-    print(f"demo: pseudo-GT     {aug['out']} ({s['accepted']} frames kept of {s['candidates']} candidates from "
-          f"{s['source_frames']} source frames, {t['total']:.0f} ms per source frame; report {aug['out'] / 'augment.json'}, "
-          f"scores {aug['out'] / 'scores.png'}); train on it with trioman train {subject.root} --extra-frames {aug['out']}")
-    print(f"demo: done in {time.perf_counter() - start:.0f} s")
-    return 0
+    with log.stage("export avatar"):
+        avatar, _ = export_avatar(run_dir, avatar_dir, overwrite=True)
+    with log.stage("animate"):
+        anims = {name: animate(avatar, motion_from_spec(name, avatar.skeleton), out / f"animate_{name}.mp4",
+                               camera=camera, size=args.size, progress=progress)
+                 for name, camera in (("walk", "fixed"), ("wave", "orbit"))}
+    return {"subject": subject, "turntable": video, "run": run_dir, "train_cfg": train_cfg, "test": test,
+            "seen": seen, "avatar_dir": avatar_dir, "avatar": avatar, "anims": anims}
 
 
-def _augment_stage(args: argparse.Namespace, out, run_dir, avatar_dir, progress: bool) -> dict:
+def _augment_stage(args: argparse.Namespace, out: Path, run_dir: Path, avatar_dir: Path, log: StageLog,
+                   progress: bool) -> dict:
     """Triplets of the trained avatar -> Refiner (tex+geo) and Examiner on the subject's training frames
     -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
     import shutil
@@ -90,16 +113,70 @@ def _augment_stage(args: argparse.Namespace, out, run_dir, avatar_dir, progress:
     from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
     from trioman.toolkit.triplets import build_triplets
 
-    triplets = build_triplets(run_dir, out / "triplets.npz", progress=progress)
+    with log.stage("triplets"):
+        triplets = build_triplets(run_dir, out / "triplets.npz", progress=progress)
     shutil.rmtree(out / "models", ignore_errors=True)  # fresh models, like the fresh avatar run
     steps = args.model_steps
-    _, refiner = fit_refiner([triplets], out / "models" / "refiner", "tex+geo", FitConfig(steps=steps, split="train"))
-    _, examiner = fit_examiner([triplets], out / "models" / "examiner",
-                               fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(args.size, 128), split="train"),
-                               validation_subjects=0)  # one subject: nothing to validate on
+    with log.stage("refiner"):
+        _, refiner = fit_refiner([triplets], out / "models" / "refiner", "tex+geo", FitConfig(steps=steps, split="train"))
+    with log.stage("examiner"):
+        _, examiner = fit_examiner([triplets], out / "models" / "examiner",
+                                   fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(args.size, 128),
+                                                 split="train"),
+                                   validation_subjects=0)  # one subject: nothing to validate on
     onnx = out / "onnx"
-    report = export_onnx(refiner=refiner["checkpoint"], examiner=examiner["checkpoint"], out=onnx, variants=("fp32", "int8"),
-                calibration=[triplets], size=args.size, overwrite=True)
-    result = augment(out / "subject", avatar_dir, onnx / "refiner.onnx", out / "augmented",
-                     examiner=onnx / "examiner.onnx", limit=args.augment_frames, overwrite=True, progress=progress)
+    with log.stage("onnx export"):
+        report = export_onnx(refiner=refiner["checkpoint"], examiner=examiner["checkpoint"], out=onnx,
+                             variants=("fp32", "int8"), calibration=[triplets], size=args.size, overwrite=True,
+                             calibration_frames=EXPORT_FRAMES, gate_frames=EXPORT_FRAMES)
+    with log.stage("augment"):
+        result = augment(out / "subject", avatar_dir, onnx / "refiner.onnx", out / "augmented",
+                         examiner=onnx / "examiner.onnx", limit=args.augment_frames, overwrite=True, progress=progress)
     return {"onnx": onnx, "export": report, "out": out / "augmented", "result": result}
+
+
+def _augmented_avatar(args: argparse.Namespace, out: Path, extra: Path, log: StageLog, lpips,
+                      progress: bool) -> dict:
+    """An avatar trained on the training frames plus the pseudo-GT frames, evaluated on the test split."""
+    import shutil
+
+    from trioman.toolkit.evaluate import evaluate
+    from trioman.toolkit.train.loop import train
+
+    run_aug = out / "run_augmented"
+    shutil.rmtree(run_aug, ignore_errors=True)
+    cfg = _quick_preset(args, extra_frames=str(extra.resolve()))
+    with log.stage("train augmented"):
+        train(out / "subject", run_aug, cfg, progress=progress, lpips=lpips)
+    with log.stage("eval augmented"):
+        test = evaluate(run_aug, "test", lpips=lpips, progress=progress)
+    return {"run": run_aug, "test": test}
+
+
+def _report(base: dict, aug: dict, final: dict) -> None:
+    """Where the outputs are, and the test PSNR of both avatars."""
+    from trioman.export.onnx_models import summary_lines
+
+    subject, run_dir, train_cfg = base["subject"], base["run"], base["train_cfg"]
+    say(f"subject       {subject.root} ({subject.num_frames} frames), contact sheet {subject.root / 'contact_sheet.png'}")
+    say(f"turntable     {base['turntable']}")
+    say(f"avatar run    {run_dir} ({train_cfg.iterations} iterations, {train_cfg.preset} preset)")
+    for name, s in (("train", base["seen"]), ("test", base["test"])):
+        m = s["mean"]
+        say(f"{name:5s} frames  PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.4f} (masked protocol)  "
+            f"report {run_dir / f'eval_{name}' / 'report.md'}")
+    say(f"test grid     {run_dir / 'eval_test' / 'grid.png'}; video {run_dir / 'eval_test' / 'video.mp4'}")
+    say(f"avatar        {base['avatar_dir']} ({base['avatar'].num_gaussians} Gaussians; canonical.ply opens in splat viewers)")
+    for r in base["anims"].values():
+        say(f"animation     {r['video']} ({r['frames']} frames, {r['ms_per_frame']:.0f} ms/frame with the numpy runtime)")
+    say(f"ONNX models   {aug['onnx']} (report {aug['onnx'] / 'export.json'}):")
+    for line in summary_lines(aug["export"]):
+        say(f"  {line}")
+    s, t = aug["result"]["summary"], aug["result"]["timing"]["ms_per_source_frame"]
+    say(f"pseudo-GT     {aug['out']} ({s['accepted']} frames kept of {s['candidates']} candidates from "
+        f"{s['source_frames']} source frames, {t['total']:.0f} ms per source frame; report {aug['out'] / 'augment.json'}, "
+        f"scores {aug['out'] / 'scores.png'})")
+    before, after = base["test"]["mean"]["psnr"], final["test"]["mean"]["psnr"]
+    say(f"augmented run {final['run']} (trioman train {subject.root} --extra-frames {aug['out']})")
+    say(f"test PSNR (masked): baseline {before:.2f} dB, augmented {after:.2f} dB ({after - before:+.2f} dB); "
+        f"report {final['run'] / 'eval_test' / 'report.md'}")

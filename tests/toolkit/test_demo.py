@@ -1,6 +1,8 @@
-"""The demo end to end at a tiny size (slow: ~1.5 min; `make test-all`)."""
+"""The demo end to end at a tiny size (slow: `make test-all`)."""
 
 import json
+import math
+import re
 
 import pytest
 
@@ -10,13 +12,24 @@ pytest.importorskip("anny")
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_avatar, load_subject  # noqa: E402
 
+STAGES = ("synth", "turntable", "train", "eval test", "eval train", "export avatar", "animate", "triplets", "refiner",
+          "examiner", "onnx export", "augment", "train augmented", "eval augmented")
+STAGE_LINE = re.compile(r"^demo: stage (.+?) +(\d+\.\d) s +peak RSS +(\d+) MiB(?: \(since start\))?$", re.M)
+PSNR_LINE = re.compile(r"^demo: test PSNR \(masked\): baseline (\S+) dB, augmented (\S+) dB \(\S+ dB\); report (\S+)$", re.M)
+
 
 @pytest.mark.slow
-def test_demo_runs_export_and_augment(tmp_path, capsys):
+def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--size", "64", "--frames", "12", "--iterations", "30",
                  "--model-steps", "5", "--augment-frames", "2", "--quiet"]) == 0
     printed = capsys.readouterr().out
+    stages = STAGE_LINE.findall(printed)
+    assert tuple(name for name, _, _ in stages) == STAGES
+    assert all(float(seconds) >= 0 and int(mib) > 0 for _, seconds, mib in stages)
+    overall = re.search(r"^demo: done in \d+ s; peak RSS (\d+) MiB", printed, re.M)
+    assert overall and int(overall.group(1)) == max(int(mib) for _, _, mib in stages)
+
     assert f"pseudo-GT     {out / 'augmented'}" in printed and str(out / "onnx" / "export.json") in printed
     load_avatar(out / "avatar")
     assert (out / "onnx" / "refiner.onnx").is_file() and (out / "onnx" / "examiner.onnx").is_file()
@@ -24,3 +37,14 @@ def test_demo_runs_export_and_augment(tmp_path, capsys):
     assert result["summary"]["source_frames"] == 2 and result["summary"]["accepted"] == 2
     assert load_subject(out / "augmented").num_frames == 2
     assert (out / "animate_walk.mp4").stat().st_size > 0
+
+    run_aug = out / "run_augmented"
+    train_cfg = json.loads((run_aug / "config.json").read_text())["train"]
+    assert train_cfg["extra_frames"] == str((out / "augmented").resolve()) and train_cfg["iterations"] == 30
+    psnr = PSNR_LINE.search(printed)
+    assert psnr and psnr.group(3) == str(run_aug / "eval_test" / "report.md")
+    baseline, augmented = float(psnr.group(1)), float(psnr.group(2))
+    assert math.isfinite(baseline) and math.isfinite(augmented)
+    for run, value in ((out / "run", baseline), (run_aug, augmented)):
+        summary = json.loads((run / "eval_test" / "summary.json").read_text())
+        assert summary["split"] == "test" and round(summary["mean"]["psnr"], 2) == value
