@@ -52,7 +52,7 @@ ONNX_OUTPUTS = ("d_offset", "d_log_scale", "d_rgb")
 WEIGHT_SUM_TOL = 1e-4
 
 _FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_quats", "skin_weights")
-_EXTRA_PLY = re.compile(r"^posed_[A-Za-z0-9_.\-]{1,100}\.ply$")
+_EXTRA_PLY = re.compile(r"posed_[A-Za-z0-9_.\-]{1,100}\.ply")  # fullmatch
 
 
 def sha256_file(path: Path) -> str:
@@ -96,7 +96,7 @@ def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
             raise _fail(where, f"files.{name}", "missing entry")
     allowed = set(required)
     for name, entry in files.items():
-        if name not in allowed and not _EXTRA_PLY.match(name):
+        if name not in allowed and not _EXTRA_PLY.fullmatch(name):
             raise _fail(where, f"files.{name}", f"unexpected file name (allowed: {sorted(allowed)} and posed_<name>.ply)")
         if not (isinstance(entry, dict) and isinstance(entry.get("sha256"), str) and re.fullmatch(r"[0-9a-f]{64}", entry["sha256"])
                 and _is_int(entry.get("bytes")) and entry["bytes"] >= 0):

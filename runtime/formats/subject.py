@@ -57,7 +57,7 @@ MASKS_DIR = "masks"
 ORTHONORMAL_TOL = 1e-3  # max |R R^T - I|
 LAST_ROW_TOL = 1e-6
 
-_FRAME_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}$")
+_FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}")  # fullmatch: "$" would pass a final newline
 _FLOAT_ARRAYS = ("poses", "trans", "K", "viewmat")
 _STRING_ARRAYS = ("split", "sequence", "frame_names")
 
@@ -277,7 +277,7 @@ def _check_frames(
         raise _fail(where, "sequence", f"subject.json lists sequence(s) {unused} that no frame uses")
     names = out["frame_names"].tolist()
     for i, name in enumerate(names):
-        if not _FRAME_NAME.match(name):
+        if not _FRAME_NAME.fullmatch(name):
             raise _fail(where, "frame_names", f"frame {i}: {name!r} is not a safe file stem (letters, digits, '_', '-', '.')")
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})[:5]

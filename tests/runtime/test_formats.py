@@ -456,6 +456,14 @@ def test_unsafe_frame_name(subject_dir):
         load_subject(subject_dir)
 
 
+@pytest.mark.parametrize("bad", ["000001\n", "000001\r", "0001 a", ""])
+def test_frame_names_must_match_in_full(subject_dir, bad):
+    # "$" in a search matches before a final newline: the whole name must match (issue 18, case 5).
+    rewrite_frames(subject_dir, frame_names=np.array(["000000", bad, "000002", "000003", "000004"]))
+    with pytest.raises(FormatError, match=r"frames\.npz: frame_names: frame 1: .* is not a safe file stem"):
+        load_subject(subject_dir)
+
+
 def test_duplicate_frame_names(subject_dir):
     rewrite_frames(subject_dir, frame_names=np.array(["000000", "000000", "000002", "000003", "000004"]))
     with pytest.raises(FormatError, match=r"frame_names: duplicate name\(s\) \['000000'\]"):

@@ -12,7 +12,7 @@ import torch
 
 from trioman.runtime.image_io import atomic_path
 
-_NAME = re.compile(r"^ckpt_(\d{7})\.pt$")
+_NAME = re.compile(r"ckpt_(\d{7})\.pt")  # fullmatch
 SELECTED = "selected.pt"  # run/selected.pt: weights chosen by validation (checkpoint format, no optimizer)
 
 
@@ -36,7 +36,7 @@ def list_checkpoints(run: Path) -> list[Path]:
     folder = Path(run) / "checkpoints"
     if not folder.is_dir():
         return []
-    return sorted(p for p in folder.iterdir() if _NAME.match(p.name))
+    return sorted(p for p in folder.iterdir() if _NAME.fullmatch(p.name))
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
