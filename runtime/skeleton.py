@@ -7,7 +7,10 @@ world-aligned axes plus a root translation [3]. With rest joints j and rotations
     A_c = G_c [I | -j_c]                                                       (skinning transforms)
     v   = sum_k w_k A_{idx_k} v_rest                                           (LBS)
 
-so the zero pose with zero translation gives the rest (canonical) mesh exactly.
+so the zero pose with zero translation gives the rest (canonical) mesh exactly. A mesh may carry
+SMPL-style pose-corrective blend shapes P [9 (J-1), V, 3]; the rest vertices are then first moved by
+``sum_p f_p P_p`` with the pose feature f = flatten(R_j - I for j = 1..J-1) (row-major 3x3 per joint),
+which is still zero at the zero pose.
 """
 
 from __future__ import annotations
@@ -138,6 +141,7 @@ class SkinnedMesh:
     skin_weights: np.ndarray  # [V, K] float32, rows sum to 1
     uvs: np.ndarray | None = None  # [T, 2] float32 texture coordinates (v up)
     uv_faces: np.ndarray | None = None  # [F, 3] int32 rows of uvs per face corner
+    pose_correctives: np.ndarray | None = None  # [9 (J-1), V, 3] float32 pose blend shapes (SMPL-X), see module doc
 
     def __post_init__(self) -> None:
         V = len(self.vertices)
@@ -180,6 +184,11 @@ class SkinnedMesh:
                 raise ValueError(f"uv_faces: indices must lie in [0, {len(uvs)}), got [{uv_faces.min()}, {uv_faces.max()}]")
             object.__setattr__(self, "uvs", uvs)
             object.__setattr__(self, "uv_faces", uv_faces.astype(np.int32))
+        if self.pose_correctives is not None:
+            P = np.asarray(self.pose_correctives, dtype=np.float32)
+            _shape("pose_correctives", P, (9 * (J - 1), V, 3))
+            _finite("pose_correctives", P)
+            object.__setattr__(self, "pose_correctives", P)
         object.__setattr__(self, "vertices", vertices)
         object.__setattr__(self, "faces", faces.astype(np.int32))
         object.__setattr__(self, "skin_indices", skin_indices.astype(np.int32))
@@ -195,17 +204,31 @@ class SkinnedMesh:
         np.add.at(W, (np.arange(self.num_vertices)[:, None], self.skin_indices), self.skin_weights)
         return W
 
+    def corrected_rest(self, pose: np.ndarray) -> np.ndarray:
+        """Rest vertices moved by the pose-corrective blend shapes. pose: [B, J, 3] -> [B, V, 3] float64
+        (the rest vertices broadcast to [1, V, 3] when the mesh has none)."""
+        if self.pose_correctives is None:
+            return self.vertices[None]
+        R = axis_angle_to_matrix(np.asarray(pose, dtype=np.float64)[:, 1:])  # [B, J-1, 3, 3]
+        feature = (R - np.eye(3)).reshape(len(R), -1).astype(np.float32)  # [B, 9 (J-1)]
+        offsets = feature @ self.pose_correctives.reshape(len(self.pose_correctives), -1)  # float32 GEMM, ~1e-9 m
+        return self.vertices[None] + offsets.astype(np.float64).reshape(len(R), self.num_vertices, 3)
+
     def pose(self, pose: np.ndarray, trans: np.ndarray, chunk: int = 16) -> np.ndarray:
-        """Posed vertices by LBS. pose: [..., J, 3], trans: [..., 3] -> [..., V, 3] float64.
+        """Posed vertices by LBS (after the pose correctives, if any). pose: [..., J, 3], trans: [..., 3]
+        -> [..., V, 3] float64.
 
         Batches are processed ``chunk`` poses at a time so memory stays ~chunk * V * 12 floats.
         """
         A = self.skeleton.skinning_transforms(pose, trans)  # [..., J, 4, 4]
         lead = A.shape[:-3]
         A = A.reshape((-1,) + A.shape[-3:])
+        flat_pose = np.asarray(pose, dtype=np.float64).reshape((-1,) + self.skeleton.joints.shape)
         out = np.empty((len(A), self.num_vertices, 3))
         for s in range(0, len(A), chunk):
-            out[s : s + chunk] = apply_transforms(blend_transforms(A[s : s + chunk], self.skin_indices, self.skin_weights), self.vertices)
+            T = blend_transforms(A[s : s + chunk], self.skin_indices, self.skin_weights)  # [b, V, 3, 4]
+            rest = self.corrected_rest(flat_pose[s : s + chunk])  # [b or 1, V, 3]
+            out[s : s + chunk] = np.einsum("...nab,...nb->...na", T[..., :3], rest) + T[..., 3]
         return out.reshape(lead + (self.num_vertices, 3))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -222,6 +245,8 @@ class SkinnedMesh:
         if self.uvs is not None:
             arrays["uvs"] = self.uvs
             arrays["uv_faces"] = self.uv_faces
+        if self.pose_correctives is not None:
+            arrays["pose_correctives"] = self.pose_correctives
         return arrays
 
     @classmethod
@@ -243,4 +268,5 @@ class SkinnedMesh:
             skin_weights=np.asarray(arrays["skin_weights"]),
             uvs=np.asarray(arrays["uvs"]) if "uvs" in arrays else None,
             uv_faces=np.asarray(arrays["uv_faces"]) if "uv_faces" in arrays else None,
+            pose_correctives=np.asarray(arrays["pose_correctives"]) if "pose_correctives" in arrays else None,
         )

@@ -127,3 +127,24 @@ def test_extreme_angles_and_translations_stay_finite_and_rigid(angle, t):
     d0 = np.linalg.norm(mesh.vertices[0] - mesh.vertices[1])
     d1 = np.linalg.norm(moved[0] - moved[1])
     assert abs(d0 - d1) < 1e-6 * max(1.0, abs(t))
+
+
+def test_pose_correctives_move_the_rest_mesh_before_skinning():
+    """SMPL-style pose blend shapes: v = LBS(v_rest + sum_p f_p P_p), f = flatten(R_j - I, j >= 1)."""
+    import dataclasses
+
+    mesh = random_mesh(5)
+    rng = np.random.default_rng(6)
+    J, V = mesh.skeleton.num_joints, mesh.num_vertices
+    P = rng.normal(scale=0.01, size=(9 * (J - 1), V, 3)).astype(np.float32)
+    corrected = dataclasses.replace(mesh, pose_correctives=P)
+    pose, trans = rng.normal(size=(2, J, 3)), rng.normal(size=(2, 3))
+    f = (axis_angle_to_matrix(pose[:, 1:]) - np.eye(3)).reshape(2, -1)
+    for i in range(2):
+        moved = dataclasses.replace(mesh, vertices=mesh.vertices + np.einsum("p,pvk->vk", f[i], P.astype(np.float64)))
+        np.testing.assert_allclose(corrected.pose(pose[i], trans[i]), moved.pose(pose[i], trans[i]), atol=1e-6)
+    np.testing.assert_allclose(corrected.pose(np.zeros((J, 3)), np.zeros(3)), mesh.vertices, atol=1e-12)
+    again = SkinnedMesh.from_arrays(corrected.to_arrays())
+    np.testing.assert_array_equal(again.pose_correctives, P)
+    with pytest.raises(ValueError, match=r"pose_correctives: expected shape \[54, 40, 3\]"):
+        dataclasses.replace(mesh, pose_correctives=P[:, :, :2])

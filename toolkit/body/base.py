@@ -36,6 +36,7 @@ class BodyModel(torch.nn.Module, abc.ABC):
     skin_weights: torch.Tensor  # [V, K]
     uvs: torch.Tensor | None  # [T, 2]
     uv_faces: torch.Tensor | None  # [F, 3]
+    pose_correctives: torch.Tensor  # optional (SMPL-X): [9 (J-1), V, 3] pose blend shapes, see runtime.skeleton
 
     @property
     def num_joints(self) -> int:
@@ -65,6 +66,7 @@ class BodyModel(torch.nn.Module, abc.ABC):
         skeleton = Skeleton(self.joint_names, self.parents.cpu().numpy().astype(np.int32), np64(self.rest_joints))
         w = self.skin_weights.detach().cpu().double()
         w = (w / w.sum(dim=1, keepdim=True)).float().numpy()
+        correctives = getattr(self, "pose_correctives", None)
         return SkinnedMesh(
             skeleton=skeleton,
             vertices=np64(self.canonical_vertices),
@@ -73,4 +75,5 @@ class BodyModel(torch.nn.Module, abc.ABC):
             skin_weights=w,
             uvs=None if self.uvs is None else self.uvs.detach().cpu().float().numpy(),
             uv_faces=None if self.uv_faces is None else self.uv_faces.cpu().numpy().astype(np.int32),
+            pose_correctives=None if correctives is None else correctives.detach().cpu().float().numpy(),
         )

@@ -24,6 +24,13 @@ def _anny(**kwargs) -> BodyModel:
     return AnnyBody(**kwargs)
 
 
+@register_body_model("smplx")
+def _smplx(**kwargs) -> BodyModel:
+    from trioman.toolkit.body.smplx_model import SMPLXBody
+
+    return SMPLXBody(**kwargs)
+
+
 def list_body_models() -> list[str]:
     return sorted(_REGISTRY)
 
