@@ -8,6 +8,7 @@ runtime subcommand work where torch is not installed; a training subcommand chec
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import importlib.util
 import os
@@ -32,6 +33,7 @@ COMMANDS = (
     Command("train", "trioman.toolkit.train.command", "train a Gaussian avatar on a subject", "train"),
     Command("eval", "trioman.toolkit.eval_command", "evaluate a trained avatar: metrics, grid, video", "train"),
     Command("export", "trioman.export.command", "export a trained avatar (portable folder) or the Refiner/Examiner (ONNX fp32/int8/fp16)", "train"),
+    Command("import", "trioman.toolkit.importers.command", "import a real capture (ExAvatar layouts, SMPL-X fits) as a subject", "smplx"),
     Command("synth-corpus", "trioman.toolkit.corpus_command", "synthetic subjects + baselines + triplets for the Refiner/Examiner", "train"),
     Command("triplets", "trioman.toolkit.triplets_command", "GT / coarse / normal-map triplets of a trained run", "train"),
     Command("train-refiner", "trioman.toolkit.refiner_command", "train the Refiner on a synthetic corpus", "train"),
@@ -44,7 +46,7 @@ COMMANDS = (
 )
 
 # The packages each extra brings, by import name: checked before a command of that extra runs.
-EXTRA_IMPORTS = {"train": ("torch", "anny")}
+EXTRA_IMPORTS = {"train": ("torch", "anny"), "smplx": ("torch", "smplx")}
 
 
 class MissingExtraError(RuntimeError):
@@ -60,6 +62,30 @@ def require_extra(command: str, extra: str) -> None:
             f"{'is' if len(missing) == 1 else 'are'} not installed: pip install 'trioman[{extra}]' "
             f"(CPU torch: pip install torch==2.13.0 first)"
         )
+
+
+# The causes a user can act on, by errno; any other OSError shows its own strerror.
+_OS_CAUSES = {
+    errno.ENOSPC: "no space left on the device (the disk is full)",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EROFS: "read-only file system",
+    errno.EISDIR: "is a directory (expected a file)",
+    errno.ENOTDIR: "a part of the path is not a directory",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.EIO: "input/output error (a failing disk or network file system)",
+}
+
+
+def describe_os_error(err: OSError) -> str:
+    """One line naming the path and the cause of an OSError (an error raised with a message of our own,
+    without errno, is shown as it is)."""
+    if err.errno is None:
+        return str(err)
+    cause = _OS_CAUSES.get(err.errno, err.strerror or os.strerror(err.errno))
+    paths = [os.fsdecode(p) for p in (err.filename, err.filename2) if p is not None]
+    return f"{' -> '.join(paths)}: {cause}" if paths else f"{cause} (errno {err.errno})"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,11 +111,12 @@ def main(argv: list[str] | None = None) -> int:
         if cmd.extra is not None:
             require_extra(cmd.name, cmd.extra)
         return int(args._module.run(args) or 0)
-    except (MissingExtraError, ValueError, FileNotFoundError, FileExistsError, FloatingPointError) as err:
+    except (MissingExtraError, ValueError, OSError, FloatingPointError) as err:
         # Expected user-facing failures: one clear line; TRIOMAN_DEBUG=1 shows the traceback.
         if os.environ.get("TRIOMAN_DEBUG"):
             raise
-        print(f"trioman {cmd.name}: error: {err}", file=sys.stderr)
+        message = describe_os_error(err) if isinstance(err, OSError) else str(err)
+        print(f"trioman {cmd.name}: error: {message}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"trioman {cmd.name}: interrupted", file=sys.stderr)

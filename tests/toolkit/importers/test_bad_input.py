@@ -1,0 +1,122 @@
+"""Bad captures: a one-line error naming the file and the field, and nothing written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("smplx", reason="needs the 'smplx' extra: pip install 'trioman[smplx]'")
+
+from trioman.cli import main  # noqa: E402
+from trioman.runtime.formats import FormatError  # noqa: E402
+from trioman.toolkit.importers.exavatar import BodyConfig, import_exavatar  # noqa: E402
+from trioman.toolkit.importers.smplx_fits import import_smplx_fits  # noqa: E402
+from tests.toolkit.importers import layouts  # noqa: E402
+
+
+def check_nothing_written(tmp_path, out):
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(f".{out.name}")], "a temporary folder was left"
+
+
+def exavatar(tmp_path, model_dir, dataset, break_it, allow_pickle=True, **body):
+    root = tmp_path / "data"
+    {"xhumans": layouts.write_xhumans, "neuman": layouts.write_neuman, "custom": layouts.write_custom}[dataset](root, model_dir)
+    folder = root / {"xhumans": "00028", "neuman": "bike", "custom": "myvideo"}[dataset]
+    break_it(folder)
+    out = tmp_path / "subject"
+    with pytest.raises((FormatError, ValueError, FileNotFoundError)) as err:
+        import_exavatar(folder, dataset, out, BodyConfig(str(model_dir), **body), allow_pickle=allow_pickle,
+                        say=lambda _: None)
+    check_nothing_written(tmp_path, out)
+    assert "\n" not in str(err.value)
+    return str(err.value)
+
+
+def edit_json(path, key, value):
+    data = json.loads(path.read_text())
+    data[key] = value
+    path.write_text(json.dumps(data))
+
+
+def test_missing_file(tmp_path, smplx_model_dir):
+    msg = exavatar(tmp_path, smplx_model_dir, "neuman",
+                   lambda f: (f / "smplx_optimized" / "smplx_params" / "00002.json").unlink())
+    assert msg.endswith("smplx_params/00002.json: missing file")
+
+
+def test_wrong_shape(tmp_path, smplx_model_dir):
+    path = "smplx_optimized/smplx_params_smoothed/1.json"
+    msg = exavatar(tmp_path, smplx_model_dir, "custom", lambda f: edit_json(f / path, "body_pose", [[0.0] * 3] * 20))
+    assert msg.endswith("1.json: body_pose: expected shape [21, 3] (63 values), got [20, 3]")
+
+
+def test_nan_in_json_and_in_npz(tmp_path, smplx_model_dir):
+    path = "smplx_optimized/smplx_params_smoothed/2.json"
+    msg = exavatar(tmp_path, smplx_model_dir, "custom", lambda f: edit_json(f / path, "trans", [float("nan"), 0, 0]))
+    assert "2.json: malformed JSON: NaN is not valid JSON" in msg
+    layouts.write_smplerx(tmp_path / "fits_case", smplx_model_dir)
+    fit = tmp_path / "fits_case" / "fits" / "smplx" / "00003_0.npz"
+    arrays = dict(np.load(fit))
+    arrays["transl"] = np.array([[0.0, np.inf, 0.0]])
+    np.savez(fit, **arrays)
+    out = tmp_path / "subject2"
+    with pytest.raises(FormatError, match=r"00003_0.npz: transl: 1 non-finite value\(s\)"):
+        import_smplx_fits(tmp_path / "fits_case" / "frames", tmp_path / "fits_case" / "fits", out, smplx_model_dir)
+    check_nothing_written(tmp_path, out)
+
+
+def test_frame_counts_disagree(tmp_path, smplx_model_dir):
+    def one_camera_too_few(folder):
+        cams = folder / "train" / "Take2" / "render" / "cameras.npz"
+        arrays = dict(np.load(cams))
+        np.savez(cams, intrinsic=arrays["intrinsic"], extrinsic=arrays["extrinsic"][:1])
+
+    msg = exavatar(tmp_path, smplx_model_dir, "xhumans", one_camera_too_few)
+    assert "Take2/render/cameras.npz: extrinsic: 1 cameras for 2 images" in msg
+    layouts.write_smplerx(tmp_path / "fits_case", smplx_model_dir)
+    (tmp_path / "fits_case" / "fits" / "smplx" / "00002_0.npz").unlink()
+    out = tmp_path / "subject2"
+    with pytest.raises(FormatError, match=r"no SMPL-X fit for frame 2 \(00002.png\); 5 frames, 4 SMPL-X fits"):
+        import_smplx_fits(tmp_path / "fits_case" / "frames", tmp_path / "fits_case" / "fits", out, smplx_model_dir)
+    check_nothing_written(tmp_path, out)
+
+
+def test_split_list_naming_a_missing_frame(tmp_path, smplx_model_dir):
+    msg = exavatar(tmp_path, smplx_model_dir, "neuman",
+                   lambda f: (f / "test_split.txt").write_text("00004.png\n00042.png\n"))
+    assert "test_split.txt: frame 42: no image in" in msg
+
+
+def test_unknown_gender(tmp_path, smplx_model_dir):
+    msg = exavatar(tmp_path, smplx_model_dir, "custom", lambda f: None, gender="other")
+    assert msg == "gender: unknown gender 'other'; expected one of ['neutral', 'male', 'female']"
+
+
+def test_smplx_file_lacking_a_key(tmp_path, smplx_model_dir):
+    models = tmp_path / "models"
+    models.mkdir()
+    arrays = dict(np.load(smplx_model_dir / "SMPLX_MALE.npz", allow_pickle=True))
+    del arrays["weights"]
+    np.savez(models / "SMPLX_MALE.npz", **arrays)
+    msg = exavatar(tmp_path, models, "custom", lambda f: None)
+    assert msg.endswith("SMPLX_MALE.npz: weights: missing array (not an SMPL-X model file?)")
+
+
+def test_pickles_need_allow_pickle(tmp_path, smplx_model_dir):
+    msg = exavatar(tmp_path, smplx_model_dir, "xhumans", lambda f: None, allow_pickle=False)
+    assert "mesh-f00001_smplx.pkl: a pickled file" in msg and "--allow-pickle" in msg
+
+
+def test_missing_model_file_from_the_command_line(tmp_path, smplx_model_dir, capsys):
+    layouts.write_custom(tmp_path / "data", smplx_model_dir)
+    out = tmp_path / "subject"
+    rc = main(["import", "exavatar", str(tmp_path / "data"), "--dataset", "custom", "--subject", "myvideo",
+               "--out", str(out), "--body-model-dir", str(tmp_path / "nowhere")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and "\n" not in err
+    assert "SMPLX_MALE.npz: SMPL-X model file not found" in err and "licensed" in err and "nowhere" in err
+    check_nothing_written(tmp_path, out)

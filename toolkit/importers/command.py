@@ -1,0 +1,55 @@
+"""``trioman import exavatar|smplx-fits``: real captures -> a subject folder (standard-library imports only here)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _body_arguments(parser: argparse.ArgumentParser, gender: str, num_betas: bool) -> None:
+    parser.add_argument("--body-model-dir", required=True, metavar="DIR",
+                        help="folder holding SMPLX_{NEUTRAL,MALE,FEMALE}.npz (licensed: https://smpl-x.is.tue.mpg.de)")
+    parser.add_argument("--gender", default=gender, choices=("neutral", "male", "female"),
+                        help=f"SMPL-X model (default {gender})")
+    if num_betas:
+        parser.add_argument("--num-betas", type=int, default=100, help="shape coefficients (default 100, ExAvatar's)")
+    parser.add_argument("--flat-hand-mean", action="store_true",
+                        help="hand poses are absolute (default: relative to SMPL-X's hand mean, as smplx and ExAvatar use)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing subject folder at --out")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="source", metavar="SOURCE", required=True)
+    ex = sub.add_parser("exavatar", help="a capture in ExAvatar's layout (X-Humans, NeuMan, custom video)")
+    ex.add_argument("root", help="the dataset folder (e.g. data/XHumans/data) or the capture folder itself")
+    ex.add_argument("--dataset", required=True, choices=("xhumans", "neuman", "custom"))
+    ex.add_argument("--subject", default=None, metavar="ID", help="the capture under ROOT (e.g. 00028, bike)")
+    ex.add_argument("--out", required=True, help="subject folder to write")
+    ex.add_argument("--allow-pickle", action="store_true",
+                    help="read pickled files (X-Humans' SMPLX/*.pkl fits); unpickling runs code, use only on files you trust")
+    _body_arguments(ex, "male", num_betas=True)
+    fits = sub.add_parser("smplx-fits", help="a video fitted with SMPL-X per frame (SMPLer-X's npz + meta json)")
+    fits.add_argument("frames", help="folder of the video's frames (N.png or N.jpg)")
+    fits.add_argument("fits", help="the fitter's output folder (smplx/FRAME_PERSON.npz and meta/FRAME_PERSON.json)")
+    fits.add_argument("--out", required=True, help="subject folder to write")
+    fits.add_argument("--masks", default=None, metavar="DIR", help="person masks, one PNG per frame (default FRAMES/../masks)")
+    fits.add_argument("--test-every", type=int, default=5, help="every K-th frame is a test frame (default 5; 0: none)")
+    _body_arguments(fits, "neutral", num_betas=False)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.source == "exavatar":
+        from trioman.toolkit.importers.exavatar import BodyConfig, import_exavatar
+
+        body = BodyConfig(args.body_model_dir, args.gender, args.num_betas, args.flat_hand_mean)
+        subject = import_exavatar(args.root, args.dataset, args.out, body, subject=args.subject,
+                                  allow_pickle=args.allow_pickle, overwrite=args.overwrite)
+    else:
+        from trioman.toolkit.importers.smplx_fits import import_smplx_fits
+
+        subject = import_smplx_fits(args.frames, args.fits, args.out, args.body_model_dir, masks_dir=args.masks,
+                                    gender=args.gender, flat_hand_mean=args.flat_hand_mean,
+                                    test_every=args.test_every, overwrite=args.overwrite)
+    counts = {s: len(subject.indices(s)) for s in ("train", "test")}
+    print(f"import: subject {subject.root}: {subject.num_frames} frames ({counts['train']} train, {counts['test']} test), "
+          f"{subject.width}x{subject.height}, SMPL-X body ({subject.num_joints} joints)")
+    return 0

@@ -1,0 +1,286 @@
+"""What every importer shares: strict readers (JSON, pickles behind a flag, images, masks, COLMAP text),
+SMPL-X parameter checks, and the one writer that turns checked frames into a subject folder.
+
+Every problem is a one-line ``FormatError`` naming the file and the field. Everything is read and
+checked before the first byte is written, and the subject is written by ``save_subject`` (a temporary
+sibling folder renamed into place), so bad input leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from trioman.runtime.formats import FormatError, Subject, save_subject
+from trioman.runtime.image_io import read_png
+from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
+from trioman.toolkit.body.smplx_model import SMPLXBody, Y_UP_TO_Z_UP, full_pose, viewmat_to_z_up
+
+# SMPL-X parameters of one frame: name -> shape (axis-angle in SMPL-X's frame, hands relative to their mean).
+PARAM_SHAPES = {"root": (3,), "body": (21, 3), "jaw": (3,), "leye": (3,), "reye": (3,), "lhand": (15, 3),
+                "rhand": (15, 3), "transl": (3,)}
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+@dataclass
+class FrameRecord:
+    """One frame as read from a capture: files, SMPL-X parameters and the camera (world -> camera)."""
+
+    name: str  # the subject's frame name (file stem)
+    split: str  # "train" | "test"
+    sequence: str
+    image: Path
+    mask: Callable[[], np.ndarray]  # -> float32 [H, W] in [0, 1], read when the frame is written
+    params: dict[str, np.ndarray]  # PARAM_SHAPES
+    R: np.ndarray  # [3, 3] world -> camera rotation of the capture's world
+    t: np.ndarray  # [3]
+    focal: np.ndarray  # [2] pixels
+    princpt: np.ndarray  # [2] pixels
+    in_camera: bool = False  # params given in the camera frame (ExAvatar's NeuMan, Custom, fitters)
+
+
+# --------------------------------------------------------------------------------------------------
+# readers
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file (NaN and Infinity refused). Missing or malformed -> FormatError naming the file."""
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+
+    def reject(name: str) -> Any:
+        raise ValueError(f"{name} is not valid JSON")
+
+    try:
+        return json.loads(path.read_text(encoding="utf-8"), parse_constant=reject)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise FormatError(f"{path}: malformed JSON: {err}") from None
+
+
+def read_pickle(path: Path, allow_pickle: bool) -> Any:
+    """A pickled file (X-Humans' original fits), only with ``allow_pickle``: unpickling runs code."""
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+    if not allow_pickle:
+        raise FormatError(f"{path}: a pickled file; reading it runs code from the file, so it is read only with "
+                          f"--allow-pickle (pass it for files you trust)")
+    import pickle
+
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f, encoding="latin1")
+    except Exception as err:  # any unpickling failure means the file is unusable
+        raise FormatError(f"{path}: unreadable pickle ({type(err).__name__}: {err})") from None
+
+
+def read_npz(path: Path) -> dict[str, np.ndarray]:
+    """All arrays of an .npz, without pickle."""
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {k: archive[k] for k in archive.files}
+    except Exception as err:  # numpy raises several types; all mean unreadable
+        raise FormatError(f"{path}: unreadable .npz without pickle ({type(err).__name__}: {err})") from None
+
+
+def array(where: Path, field: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a finite float64 array of ``shape`` (any layout with the same number of values)."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FormatError(f"{where}: {field}: expected numbers, got {type(value).__name__}") from None
+    if a.size != int(np.prod(shape)):
+        raise FormatError(f"{where}: {field}: expected shape {list(shape)} ({int(np.prod(shape))} values), "
+                          f"got {list(a.shape)}")
+    bad = int((~np.isfinite(a)).sum())
+    if bad:
+        raise FormatError(f"{where}: {field}: {bad} non-finite value(s) (NaN/Inf)")
+    return a.reshape(shape)
+
+
+def smplx_params(where: Path, source: dict, keys: dict[str, str], defaults: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """SMPL-X parameters of one frame from a mapping. keys: our name -> the file's key; names in ``defaults``
+    are zero when the file lacks them."""
+    if not isinstance(source, dict):
+        raise FormatError(f"{where}: expected an object of SMPL-X parameters, got {type(source).__name__}")
+    out = {}
+    for name, key in keys.items():
+        if key not in source:
+            if name in defaults:
+                out[name] = np.zeros(PARAM_SHAPES[name])
+                continue
+            raise FormatError(f"{where}: {key}: missing field")
+        out[name] = array(where, key, source[key], PARAM_SHAPES[name])
+    return out
+
+
+def read_image(path: Path) -> np.ndarray:
+    """float32 RGB [H, W, 3] in [0, 1] (PNG or JPEG)."""
+    try:
+        return read_png(path, mode="rgb")
+    except FileNotFoundError:
+        raise FormatError(f"{path}: missing file") from None
+    except ValueError as err:
+        raise FormatError(str(err)) from None
+
+
+def read_gray(path: Path) -> np.ndarray:
+    """float32 [H, W] as stored (8/16-bit scaled to [0, 1], float TIFF as is)."""
+    try:
+        img = read_png(path)
+    except FileNotFoundError:
+        raise FormatError(f"{path}: missing file") from None
+    except ValueError as err:
+        raise FormatError(str(err)) from None
+    return img if img.ndim == 2 else img[..., 0]
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file."""
+    img = read_image(path)
+    return img.shape[1], img.shape[0]
+
+
+def frame_index(path: Path) -> int | None:
+    """The frame number in a file stem (its last run of digits), None without digits."""
+    digits = re.findall(r"\d+", path.stem)
+    return int(digits[-1]) if digits else None
+
+
+def images_by_index(folder: Path, what: str) -> dict[int, Path]:
+    """Image files of a folder by frame number; a folder without images -> FormatError."""
+    if not folder.is_dir():
+        raise FormatError(f"{folder}: missing folder ({what})")
+    found = {}
+    for p in sorted(folder.iterdir()):
+        if p.suffix.lower() in IMAGE_SUFFIXES + (".tiff", ".tif") and frame_index(p) is not None:
+            found[frame_index(p)] = p
+    if not found:
+        raise FormatError(f"{folder}: no {what} found")
+    return found
+
+
+def read_split_list(path: Path) -> list[int]:
+    """A split list (``00012.png`` or ``12`` per line) -> frame numbers."""
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+    out = []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if line.strip():
+            idx = frame_index(Path(line.strip()))
+            if idx is None:
+                raise FormatError(f"{path}: line {n}: {line.strip()!r} names no frame number")
+            out.append(idx)
+    return out
+
+
+def read_colmap(sparse: Path) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """COLMAP text model: one shared PINHOLE/SIMPLE_PINHOLE camera -> focal [2], princpt [2], and per image
+    (by the frame number in its name) world -> camera (R [3, 3], t [3])."""
+    cams_path, images_path = sparse / "cameras.txt", sparse / "images.txt"
+    cameras = [ln.split() for ln in _lines(cams_path)]
+    if len(cameras) != 1:
+        raise FormatError(f"{cams_path}: expected one shared camera, got {len(cameras)}")
+    tok = cameras[0]
+    try:
+        params = [float(v) for v in tok[4:]]
+    except ValueError:
+        raise FormatError(f"{cams_path}: camera parameters: not numbers: {tok[4:]}") from None
+    if len(tok) < 4 or tok[1] not in ("PINHOLE", "SIMPLE_PINHOLE") or len(params) != (4 if tok[1] == "PINHOLE" else 3):
+        raise FormatError(f"{cams_path}: camera: expected 'ID PINHOLE W H fx fy cx cy' (or SIMPLE_PINHOLE W H f cx cy), "
+                          f"got {' '.join(tok)!r}")
+    focal = np.array(params[:2] if tok[1] == "PINHOLE" else params[:1] * 2)
+    princpt = np.array(params[-2:])
+    poses = {}
+    for ln in _lines(images_path):
+        tok = ln.split()
+        if len(tok) != 10 or not tok[9].lower().endswith(IMAGE_SUFFIXES):
+            continue  # the 2D-point line after each image line
+        idx = frame_index(Path(tok[9]))
+        q = array(images_path, f"{tok[9]}: QW QX QY QZ", [_float(images_path, v) for v in tok[1:5]], (4,))
+        t = array(images_path, f"{tok[9]}: TX TY TZ", [_float(images_path, v) for v in tok[5:8]], (3,))
+        if idx is None or np.linalg.norm(q) < 1e-8:
+            raise FormatError(f"{images_path}: {tok[9]}: no frame number in the name, or a zero quaternion")
+        poses[idx] = (quat_to_matrix(q), t)
+    if not poses:
+        raise FormatError(f"{images_path}: no image lines ('ID QW QX QY QZ TX TY TZ CAMERA_ID NAME')")
+    return focal, princpt, poses
+
+
+def _lines(path: Path) -> list[str]:
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+    return [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def _float(path: Path, v: str) -> float:
+    try:
+        return float(v)
+    except ValueError:
+        raise FormatError(f"{path}: {v!r} is not a number") from None
+
+
+# --------------------------------------------------------------------------------------------------
+# the subject
+
+
+def _to_world(records: list[FrameRecord], root_joint: np.ndarray) -> None:
+    """Parameters given in the camera frame -> the capture's world, as ExAvatar does (x_w = R^T (x_c - t)):
+    the root rotation becomes R^T R_root and the translation R^T (j0 + transl - t) - j0 (j0: rest pelvis)."""
+    for r in records:
+        if not r.in_camera:
+            continue
+        R_root = r.R.T @ axis_angle_to_matrix(r.params["root"])
+        r.params["root"] = matrix_to_axis_angle(R_root)
+        r.params["transl"] = r.R.T @ (root_joint + r.params["transl"] - r.t) - root_joint
+        r.in_camera = False
+
+
+def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], generator: dict[str, Any],
+                  overwrite: bool = False) -> Subject:
+    """Check the frames against each other and write the subject (images premultiplied by their mask, on black).
+
+    Poses are SMPL-X full poses and everything is moved to TrioMan's z-up world (docs/formats.md)."""
+    if not records:
+        raise FormatError(f"{out}: no frames to import")
+    splits = {r.split for r in records}
+    if "train" not in splits:
+        raise FormatError(f"{out}: no training frames (check the split lists)")
+    W, H = image_size(records[0].image)
+    root_joint = body.rest_joints[0].double().numpy() @ Y_UP_TO_Z_UP  # back to SMPL-X's frame
+    _to_world(records, root_joint)
+    p = {k: np.stack([r.params[k] for r in records]) for k in PARAM_SHAPES}
+    pose = full_pose(body.hand_mean.double().numpy(), p["root"], p["body"], p["jaw"], p["leye"], p["reye"],
+                     p["lhand"], p["rhand"])
+    trans = p["transl"] @ Y_UP_TO_Z_UP.T
+    view = np.tile(np.eye(4), (len(records), 1, 1))
+    view[:, :3, :3] = np.stack([r.R for r in records])
+    view[:, :3, 3] = np.stack([r.t for r in records])
+    K = np.tile(np.eye(3), (len(records), 1, 1))
+    K[:, 0, 0], K[:, 1, 1] = [np.array([r.focal[i] for r in records]) for i in (0, 1)]
+    K[:, 0, 2], K[:, 1, 2] = [np.array([r.princpt[i] for r in records]) for i in (0, 1)]
+
+    def frames() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for r in records:
+            img, mask = read_image(r.image), r.mask()
+            if img.shape[:2] != (H, W) or mask.shape != (H, W):
+                bad = r.image if img.shape[:2] != (H, W) else f"mask of frame {r.name!r}"
+                raise FormatError(f"{bad}: size {(img if bad == r.image else mask).shape[1]}x"
+                                  f"{(img if bad == r.image else mask).shape[0]} (W x H) differs from the first "
+                                  f"frame's {W}x{H}")
+            yield img * mask[..., None], mask
+
+    a, b = itertools.tee(frames())
+    return save_subject(
+        out, body=body.to_skinned_mesh(), poses=pose.astype(np.float32), trans=trans.astype(np.float32),
+        K=K.astype(np.float32), viewmat=viewmat_to_z_up(view).astype(np.float32), split=[r.split for r in records],
+        sequence=[r.sequence for r in records], images=(f[0] for f in a), masks=(f[1] for f in b), width=W, height=H,
+        body_model="smplx", background=(0.0, 0.0, 0.0), generator=generator,
+        frame_names=[r.name for r in records], overwrite=overwrite)
