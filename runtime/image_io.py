@@ -9,6 +9,7 @@ a half-written file and an interrupted write leaves nothing behind.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 import struct
@@ -65,7 +66,22 @@ def _create_temp(path: Path, suffix: str) -> Path:
             return tmp
         except FileExistsError:
             continue
+        except OSError as err:  # a read-only, full or foreign folder: name the file being written
+            raise OSError(err.errno, err.strerror, str(path)) from err
     raise FileExistsError(f"{path}: could not create a temporary file next to it")
+
+
+@contextlib.contextmanager
+def naming_os_errors(path: PathLike, *aliases: PathLike) -> Iterator[None]:
+    """Re-raise an OSError of the block that names no file (a write to an open file: disk full), or
+    names one of ``aliases`` (a temporary file), as the same error naming ``path``."""
+    try:
+        yield
+    except OSError as err:
+        names = {None, *(os.fspath(a) for a in aliases)}
+        if err.errno is None or err.filename not in names:
+            raise
+        raise OSError(err.errno, err.strerror, os.fspath(path)) from err
 
 
 @contextlib.contextmanager
@@ -74,16 +90,20 @@ def atomic_path(path: PathLike, suffix: str | None = None) -> Iterator[Path]:
 
     ``suffix`` is the temporary name's ending (default: ``path``'s own suffix, so tools that pick a
     format from the extension, such as OpenCV's VideoWriter, still work). If the block raises, the
-    temporary file is removed and ``path`` is left untouched.
+    temporary file is removed and ``path`` is left untouched. An OSError about the temporary file
+    (disk full, permission, read-only file system) names ``path``; a folder at ``path`` is refused first.
     """
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: the folder {path.parent} does not exist")
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
     tmp_path = _create_temp(path, path.suffix if suffix is None else suffix)
     try:
-        yield tmp_path
-        _fsync_file(tmp_path)
-        os.replace(tmp_path, path)
+        with naming_os_errors(path, tmp_path):
+            yield tmp_path
+            _fsync_file(tmp_path)
+            os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()

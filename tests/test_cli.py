@@ -1,5 +1,8 @@
 """The ``trioman`` command: every subcommand listed, runtime commands and --help work without torch."""
 
+import errno
+import os
+
 import pytest
 
 from tests.conftest import run_python
@@ -29,3 +32,84 @@ def test_training_command_without_torch_names_the_extra(cmd, tmp_path):
 def test_no_command_prints_help(capsys):
     assert main([]) == 2
     assert "COMMAND" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------------------------------
+# OS errors: one line naming the path and the cause, exit 1, nothing left behind (issue 18, case 2)
+
+
+@pytest.fixture
+def avatar_dir(tmp_path):
+    from tests.runtime.test_avatar import write
+
+    write(tmp_path / "avatars")
+    return tmp_path / "avatars" / "a"
+
+
+def render(avatar_dir, out) -> int:
+    return main(["render", str(avatar_dir), "--out", str(out), "--size", "32"])
+
+
+def assert_one_line(err: str, *parts: str) -> None:
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    for part in parts:
+        assert part in err, (part, err)
+
+
+def test_an_output_path_that_is_a_folder_is_named(avatar_dir, tmp_path, capsys):
+    (tmp_path / "img.png").mkdir()
+    assert render(avatar_dir, tmp_path / "img.png") == 1
+    assert_one_line(capsys.readouterr().err, f"{tmp_path / 'img.png'}: is a directory")
+
+
+class _FullDisk:
+    """A file whose writes fail like a full disk's (errno ENOSPC, no file name)."""
+
+    def __init__(self, path, mode="r", *args, **kw):
+        self._f = open(path, mode, *args, **kw)
+
+    def write(self, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._f.close()
+
+
+def test_a_full_disk_names_the_file_and_leaves_nothing(avatar_dir, tmp_path, capsys, monkeypatch):
+    from trioman.runtime import image_io
+
+    monkeypatch.setattr(image_io, "open", _FullDisk, raising=False)
+    out = tmp_path / "out" / "img.png"
+    out.parent.mkdir()
+    assert render(avatar_dir, out) == 1
+    assert_one_line(capsys.readouterr().err, f"{out}: no space left on the device")
+    assert list(out.parent.iterdir()) == []  # no partial file, no temporary file
+
+
+@pytest.mark.parametrize("code, cause", [(errno.EROFS, "read-only file system"), (errno.EACCES, "permission denied")])
+def test_an_unwritable_folder_names_the_file(avatar_dir, tmp_path, capsys, monkeypatch, code, cause):
+    real_open = os.open
+
+    def refuse_create(path, flags, *args):  # the tests run as root, which chmod cannot stop
+        if flags & os.O_CREAT:
+            raise OSError(code, os.strerror(code), path)
+        return real_open(path, flags, *args)
+
+    monkeypatch.setattr(os, "open", refuse_create)
+    out = tmp_path / "img.png"
+    assert render(avatar_dir, out) == 1
+    assert_one_line(capsys.readouterr().err, f"{out}: {cause}")
+    assert not out.exists()
+
+
+def test_describe_os_error():
+    from trioman.cli import describe_os_error
+
+    assert describe_os_error(OSError(errno.ENOSPC, "No space left on device", "/d/f")) == \
+        "/d/f: no space left on the device (the disk is full)"
+    assert describe_os_error(OSError(errno.EXDEV, "Invalid cross-device link", "/a", None, "/b")) == \
+        "/a -> /b: Invalid cross-device link"
+    assert describe_os_error(FileNotFoundError("run: no checkpoint")) == "run: no checkpoint"

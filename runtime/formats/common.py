@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import temp_sibling
+from trioman.runtime.image_io import naming_os_errors, temp_sibling
 
 
 class FormatError(ValueError):
@@ -80,14 +80,14 @@ def _load_npz(path: Path) -> dict[str, np.ndarray]:
 
 
 def _fsynced_write(path: Path, data: bytes) -> None:
-    with open(path, "wb") as f:
+    with naming_os_errors(path), open(path, "wb") as f:
         f.write(data)
         f.flush()
         os.fsync(f.fileno())
 
 
 def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
-    with open(path, "wb") as f:
+    with naming_os_errors(path), open(path, "wb") as f:
         np.savez(f, **arrays)
         f.flush()
         os.fsync(f.fileno())

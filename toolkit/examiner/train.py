@@ -13,11 +13,10 @@ from typing import Any, Callable, Iterable, Iterator, NamedTuple
 import torch
 from tqdm import tqdm
 
-from trioman.runtime.image_io import atomic_path
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_checkpoint
+from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_atomic, save_checkpoint
 
 
 @dataclass(frozen=True)
@@ -165,9 +164,8 @@ def _save_selected(run: Path, step: int, weights: dict, model: Examiner, config:
     """run/selected.pt: the selected weights in checkpoint format (no optimizer), written atomically."""
     path = run / SELECTED
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        torch.save({"step": step, "model": weights, "config": model.config.to_dict(), "train": config.to_dict(),
-                    "validation": value}, tmp)
+    save_atomic(path, {"step": step, "model": weights, "config": model.config.to_dict(), "train": config.to_dict(),
+                       "validation": value})
     return path
 
 

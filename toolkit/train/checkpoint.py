@@ -3,6 +3,7 @@ no finished checkpoint. Loaded with weights_only=True (data, never code)."""
 
 from __future__ import annotations
 
+import io
 import os
 import re
 from pathlib import Path
@@ -10,7 +11,7 @@ from typing import Any
 
 import torch
 
-from trioman.runtime.image_io import atomic_path
+from trioman.runtime.image_io import atomic_write_bytes
 
 _NAME = re.compile(r"ckpt_(\d{7})\.pt")  # fullmatch
 SELECTED = "selected.pt"  # run/selected.pt: weights chosen by validation (checkpoint format, no optimizer)
@@ -20,12 +21,19 @@ def checkpoint_path(run: Path, step: int) -> Path:
     return Path(run) / "checkpoints" / f"ckpt_{step:07d}.pt"
 
 
+def save_atomic(path: Path, state: dict[str, Any]) -> None:
+    """``torch.save(state)`` to ``path`` atomically, serialised in memory first: a full disk or a read-only
+    folder is then an OSError naming ``path`` (torch.save to a file reports it as "unexpected pos")."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
 def save_checkpoint(run: Path, step: int, state: dict[str, Any], keep: int = 2) -> Path:
     """Write ``state`` for ``step`` and keep only the newest ``keep`` checkpoints."""
     path = checkpoint_path(run, step)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+    save_atomic(path, state)
     for old in list_checkpoints(run)[:-keep]:
         old.unlink(missing_ok=True)
     return path
