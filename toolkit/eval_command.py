@@ -10,6 +10,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="test", choices=("train", "test"), help="frames to evaluate (default test)")
     parser.add_argument("--out", default=None, help="report folder (default RUN/eval_SPLIT)")
     parser.add_argument("--no-video", action="store_true", help="skip the MP4")
+    parser.add_argument("--protocol", default="ours", choices=("ours", "exavatar"),
+                        help="exavatar: also ExAvatar's numbers (composited over white outside the GT mask, full image, "
+                             "PSNR/SSIM data range 1, LPIPS-AlexNet, mean over frames)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -21,9 +24,14 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path(args.run) / f"eval_{args.split}"
     summary = evaluate(args.run, args.split, out, lpips=load_lpips_or_say_why("eval"), progress=not args.quiet,
-                       video=not args.no_video)
+                       video=not args.no_video, protocol=args.protocol)
     m = summary["mean"]
     print(f"eval: {summary['frames']} {args.split} frames at step {summary['step']}: PSNR {m['psnr']:.2f} dB, "
           f"SSIM {m['ssim']:.4f} (masked protocol); unmasked PSNR {m['psnr_unmasked']:.2f} dB")
+    if "exavatar" in summary:
+        e = summary["exavatar"]
+        lpips = "n/a" if e["lpips"] is None else f"{e['lpips']:.4f}"
+        print(f"eval: ExAvatar's protocol: PSNR {e['psnr']:.2f} dB, SSIM {e['ssim']:.4f} (torchmetrics >= 1.5; "
+              f"{e['ssim_tm14']:.4f} as <= 1.4), LPIPS {lpips}")
     print(f"eval: report {out / 'report.md'}, grid {out / 'grid.png'}" + ("" if args.no_video else f", video {out / 'video.mp4'}"))
     return 0

@@ -24,6 +24,12 @@ from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.loop import render
 
 WHITE = torch.ones(3)
+PROTOCOLS = ("ours", "exavatar")
+# --protocol exavatar: ExAvatar's evaluation (eval_xhumans.py / eval_neuman.py): both images composited over
+# white outside the GT mask, full image, no crop, torchmetrics PSNR and SSIM (data range 1), LPIPS-AlexNet
+# on [-1, 1], mean over frames. Its SSIM depends on the torchmetrics release (see trioman.toolkit.metrics):
+# both are reported, ">= 1.5" (the reflect-padded border, also our 'ssim') and "<= 1.4" (the valid region).
+EXAVATAR_KEYS = ("exavatar_psnr", "exavatar_ssim", "exavatar_ssim_tm14", "exavatar_lpips")
 
 
 def load_run(run: str | Path, checkpoint: str | Path | None = None) -> tuple[GaussianAvatar, Subject, TrainConfig, int]:
@@ -63,8 +69,12 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
 
 @flush_denormals()
 def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
-             progress: bool = True, grid_frames: int = 6, video: bool = True) -> dict:
-    """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary."""
+             progress: bool = True, grid_frames: int = 6, video: bool = True, protocol: str = "ours") -> dict:
+    """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary.
+
+    ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol: expected one of {list(PROTOCOLS)}, got {protocol!r}")
     model, subject, cfg, step = load_run(run)
     out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)
@@ -78,11 +88,15 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
         mask = subject.mask(int(i))
         gt = subject.image(int(i)) + (1 - mask)[..., None]  # premultiplied GT over white
         m = evaluate_pair(pred, gt, mask, lpips=lpips)
+        if protocol == "exavatar":
+            valid = evaluate_pair(pred, gt, mask, ssim_border="valid")
+            m = {**m, "exavatar_psnr": m["psnr"], "exavatar_ssim": m["ssim"], "exavatar_ssim_tm14": valid["ssim"],
+                 "exavatar_lpips": m["lpips"]}
         rows.append({"frame": subject.frame_names[i], "sequence": subject.sequence[i], **m})
         triplets.append((gt, pred))
         if int(i) in picks:
             triplets[-1] = (gt, pred, error_map(pred, gt))
-    summary = _summarise(rows, split, step, cfg, lpips is not None)
+    summary = _summarise(rows, split, step, cfg, lpips is not None, protocol)
     _write_reports(out, rows, summary)
     grid = [im for t in triplets if len(t) == 3 for im in t]
     labels = [f"{name} {r['frame']}" for r, t in zip(rows, triplets) if len(t) == 3 for name in ("GT", "render", "error x4")]
@@ -92,7 +106,7 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
     return summary
 
 
-def _summarise(rows: list[dict], split: str, step: int, cfg: TrainConfig, has_lpips: bool) -> dict:
+def _summarise(rows: list[dict], split: str, step: int, cfg: TrainConfig, has_lpips: bool, protocol: str) -> dict:
     def mean(rs: list[dict], key: str):
         vals = [r[key] for r in rs if r[key] is not None]
         return float(np.mean(vals)) if vals else None
@@ -101,11 +115,14 @@ def _summarise(rows: list[dict], split: str, step: int, cfg: TrainConfig, has_lp
     for name in dict.fromkeys(r["sequence"] for r in rows):
         rs = [r for r in rows if r["sequence"] == name]
         by_seq[name] = {"frames": len(rs), **{k: mean(rs, k) for k in METRIC_KEYS}}
-    return {
+    summary = {
         "split": split, "step": step, "preset": cfg.preset, "frames": len(rows),
         "lpips": "AlexNet" if has_lpips else "not computed (no local weights; set TRIOMAN_LPIPS_DIR)",
         "mean": {k: mean(rows, k) for k in METRIC_KEYS}, "sequences": by_seq,
     }
+    if protocol == "exavatar":
+        summary["exavatar"] = {k.removeprefix("exavatar_"): mean(rows, k) for k in EXAVATAR_KEYS}
+    return summary
 
 
 def _fmt(v) -> str:
@@ -114,7 +131,8 @@ def _fmt(v) -> str:
 
 def _write_reports(out: Path, rows: list[dict], summary: dict) -> None:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=["frame", "sequence", *METRIC_KEYS], lineterminator="\n")
+    extra = list(EXAVATAR_KEYS) if "exavatar" in summary else []
+    writer = csv.DictWriter(buf, fieldnames=["frame", "sequence", *METRIC_KEYS, *extra], lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
     atomic_write_text(out / "metrics.csv", buf.getvalue())
@@ -131,4 +149,13 @@ def _write_reports(out: Path, rows: list[dict], summary: dict) -> None:
     for name, s in [*summary["sequences"].items(), ("**all**", {"frames": summary["frames"], **summary["mean"]})]:
         lines.append(f"| {name} | {s['frames']} | {_fmt(s['psnr'])} | {_fmt(s['ssim'])} | {_fmt(s['lpips'])} | "
                      f"{_fmt(s['psnr_unmasked'])} | {_fmt(s['ssim_unmasked'])} |")
+    if "exavatar" in summary:
+        e = summary["exavatar"]
+        lines += ["", "## ExAvatar's protocol", "",
+                  "Both images composited over white outside the GT mask, full image, no crop, PSNR and SSIM with data",
+                  "range 1, LPIPS (AlexNet) on [-1, 1] when its weights exist, mean over frames. SSIM as torchmetrics >= 1.5",
+                  "computes it and as torchmetrics <= 1.4 did (the valid region only). PSNR, the first SSIM and LPIPS",
+                  "are our masked columns above: the same protocol.", "",
+                  "| frames | PSNR | SSIM (torchmetrics >= 1.5) | SSIM (torchmetrics <= 1.4) | LPIPS |", "|---|---|---|---|---|",
+                  f"| {summary['frames']} | {_fmt(e['psnr'])} | {_fmt(e['ssim'])} | {_fmt(e['ssim_tm14'])} | {_fmt(e['lpips'])} |"]
     atomic_write_text(out / "report.md", "\n".join(lines) + "\n")

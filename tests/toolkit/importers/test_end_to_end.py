@@ -22,7 +22,7 @@ def test_import_train_eval_export_animate(tmp_path, smplx_model_dir, capsys):
         ["import", "exavatar", str(tmp_path / "data"), "--dataset", "xhumans", "--subject", "00028", "--out",
          str(subject), "--body-model-dir", str(smplx_model_dir), "--allow-pickle"],
         ["train", str(subject), "--out", str(run), "--iterations", "3", "--quiet"],
-        ["eval", str(run), "--quiet", "--no-video"],
+        ["eval", str(run), "--quiet", "--no-video", "--protocol", "exavatar"],
         ["export", "avatar", str(run), "--out", str(avatar)],
         ["animate", str(avatar), "--motion", str(subject), "--out", str(tmp_path / "test.mp4"), "--size", "64", "--quiet"],
     ]
@@ -30,6 +30,9 @@ def test_import_train_eval_export_animate(tmp_path, smplx_model_dir, capsys):
         assert main(argv) == 0, f"trioman {' '.join(argv[:2])}: {capsys.readouterr().err}"
     summary = json.loads((run / "eval_test" / "summary.json").read_text())
     assert summary["frames"] == 2
+    e = summary["exavatar"]  # ExAvatar's protocol beside ours: the same masked composite, both SSIM borders
+    assert e["psnr"] == summary["mean"]["psnr"] and e["ssim"] == summary["mean"]["ssim"] and 0 < e["ssim_tm14"] <= 1
+    assert "ExAvatar's protocol" in (run / "eval_test" / "report.md").read_text()
     loaded = load_avatar(avatar)
     assert loaded.meta["body_model"] == "smplx" and loaded.skeleton.num_joints == 55
     assert (tmp_path / "test.mp4").stat().st_size > 0
