@@ -167,8 +167,8 @@ class Augmenter:
         t, sec = time.perf_counter(), self.stats["seconds"]
         f, bg = self.frames, self.background
         W, H = f.width, f.height
-        K, real_mask = f.K[i].numpy().astype(np.float64), f.masks[i].numpy()
-        real = f.images[i].numpy() + (1.0 - real_mask)[..., None] * bg  # I^T over the subject's background
+        K, real_mask = f.K[i].numpy().astype(np.float64), f.mask(i).numpy()
+        real = f.image(i).numpy() + (1.0 - real_mask)[..., None] * bg  # I^T over the subject's background
         cands = sample(self.subject.body.skeleton, f.poses[i].numpy(), f.trans[i].numpy(), f.viewmat[i].numpy(),
                        self.rng, self.cfg.candidates, self.gen_cfg)
         t = _tick(sec, "generate", t)
