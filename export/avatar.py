@@ -44,7 +44,7 @@ def bake(model: GaussianAvatar) -> dict[str, np.ndarray]:
     out = {
         "positions": model.canonical + geo[:, :3],
         "log_scales": model.base_log_scale + geo[:, 3 : 3 + s],
-        "rgb_logits": model.rgb_net(feats),
+        "rgb_logits": model.rgb_logits(feats),
         "opacities": torch.ones(model.num_gaussians),
     }
     if model.cfg.anisotropic:

@@ -45,8 +45,10 @@ test_poses.__test__ = False  # a helper, not a test
 
 @pytest.mark.parametrize("anisotropic", [False, True], ids=["iso", "aniso"])
 @pytest.mark.parametrize("pose_dependent", [True, False], ids=["posedep", "plain"])
-def test_runtime_gaussians_match_the_torch_model(tmp_path, anisotropic, pose_dependent):
-    model = trained_like(AvatarConfig(anisotropic=anisotropic, pose_dependent=pose_dependent, **SMALL))
+@pytest.mark.parametrize("point_colors", [False, True], ids=["triplane-rgb", "point-rgb"])
+def test_runtime_gaussians_match_the_torch_model(tmp_path, anisotropic, pose_dependent, point_colors):
+    cfg = AvatarConfig(anisotropic=anisotropic, pose_dependent=pose_dependent, point_colors=point_colors, **SMALL)
+    model = trained_like(cfg)
     av, info = export_model(model, tmp_path / "a", body_model="test")
     assert av.pose_dependent == pose_dependent and av.anisotropic == anisotropic
     assert (info["onnx_parity_max_abs"] is not None) == pose_dependent

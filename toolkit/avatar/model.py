@@ -39,6 +39,7 @@ class AvatarConfig:
     pose_dependent: bool = True
     knn: int = 6  # neighbours for the Laplacian regularisers and the initial scale
     scale_init: float = 0.75  # initial Gaussian scale, in units of the mean neighbour distance
+    point_colors: bool = False  # a free colour logit per Gaussian on top of the triplane MLP's (detail below a cell)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -117,6 +118,8 @@ class GaussianAvatar(nn.Module):
             s = 3 if cfg.anisotropic else 1
             self.geo_net = _mlp(f, cfg.hidden, 3 + s + (4 if cfg.anisotropic else 0))
             self.rgb_net = _mlp(f, cfg.hidden, 3)
+            if cfg.point_colors:
+                self.point_rgb = nn.Parameter(torch.zeros(self.num_gaussians, 3))
             if cfg.pose_dependent:
                 p = 6 * len(cond)
                 self.geo_offset_net = PoseMLP(f, p, cfg.hidden, 3 + s)
@@ -132,13 +135,18 @@ class GaussianAvatar(nn.Module):
         eye = torch.eye(3, dtype=R.dtype, device=R.device)
         return (matrix_to_rot6d(R) - matrix_to_rot6d(eye)).reshape(-1)
 
+    def rgb_logits(self, feats: torch.Tensor) -> torch.Tensor:
+        """feats: [N, F] triplane features -> [N, 3] pose-independent colour logits."""
+        logits = self.rgb_net(feats)
+        return logits + self.point_rgb if self.cfg.point_colors else logits
+
     def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
         """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
         feats = self.triplane(self.canonical)
         geo = self.geo_net(feats)
         s = 3 if self.cfg.anisotropic else 1
         offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
-        rgb_logit = self.rgb_net(feats)
+        rgb_logit = self.rgb_logits(feats)
         if self.cfg.pose_dependent:
             pf = self.pose_features(pose)
             dgeo = self.geo_offset_net(feats, pf)

@@ -31,6 +31,7 @@ class TrainConfig:
     iterations: int = 1500
     lr: float = 1e-3
     lr_decay_at: tuple[float, float] = (0.75, 0.95)  # x0.1 then x0.01 at these fractions of the run
+    point_color_lr: float = 1e-2  # learning rate of the per-Gaussian colours (avatar.point_colors), same decay
     image_scale: float = 1.0  # train on images resized by this factor (K scaled to match)
     supervise_plain: bool = False  # also render and supervise the pose-independent set (ExAvatar does)
     frames: str = "train"  # the frames trained on: "train" (the train split) or "all" (every frame)
@@ -54,8 +55,9 @@ class TrainConfig:
             raise ValueError(f"frames: expected 'train' or 'all', got {self.frames!r}")
         if self.frame_stride < 1:
             raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
-        if not self.lr > 0:
-            raise ValueError(f"lr: must be > 0, got {self.lr}")
+        for name in ("lr", "point_color_lr"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
         w = self.extra_weight
         if isinstance(w, bool) or not (isinstance(w, (int, float)) and 0 <= w < float("inf")):
             raise ValueError(f"extra_weight: must be a finite number >= 0, got {self.extra_weight!r}")

@@ -41,6 +41,16 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
     return lr
 
 
+def param_groups(model: GaussianAvatar, cfg: TrainConfig) -> list[dict]:
+    """Adam groups: the per-Gaussian colours at ``cfg.point_color_lr``, the rest at ``cfg.lr`` (both decay)."""
+    point = [p for n, p in model.named_parameters() if n == "point_rgb"]
+    rest = [p for n, p in model.named_parameters() if n != "point_rgb"]
+    groups = [{"params": rest, "lr_scale": 1.0}]
+    if point:
+        groups.append({"params": point, "lr_scale": cfg.point_color_lr / cfg.lr})
+    return groups
+
+
 def photometric(pred: torch.Tensor, gt: torch.Tensor, cfg: TrainConfig, lpips=None) -> torch.Tensor:
     """pred, gt: [H, W, 3] -> L1 0.8 + (1 - SSIM) 0.2 (+ LPIPS 0.2)."""
     p, g = pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
@@ -120,7 +130,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
     model = GaussianAvatar(subject.body, cfg.avatar)
     augmenter = None if cfg.augment is None else Augmenter(cfg.augment, subject, frames, cfg.iterations, cfg.seed)
-    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=1e-15)
+    optimizer = torch.optim.Adam(param_groups(model, cfg), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)
     torch_gen = torch.Generator().manual_seed(cfg.seed)
     step, seconds = 0, 0.0
@@ -156,7 +166,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         while step < cfg.iterations and (stop_after is None or done_here < stop_after):
             t0 = time.perf_counter()
             for group in optimizer.param_groups:
-                group["lr"] = learning_rate(cfg, step)
+                group["lr"] = learning_rate(cfg, step) * group["lr_scale"]
             if augmenter is not None and augmenter.due(step):
                 augmenter.rebuild(model)
             if augmenter is not None and augmenter.use_pseudo(step):

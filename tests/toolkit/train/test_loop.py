@@ -1,6 +1,7 @@
 """Training and evaluation on a tiny synthetic subject: the loss goes down, resume is exact, reports exist."""
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -55,6 +56,17 @@ def test_resume_after_interruption_matches_an_uninterrupted_run(subject, tmp_pat
     assert not list((broken / "checkpoints").glob(".*")), "no temporary files left behind"
 
 
+def test_point_colours_train_at_their_own_decaying_learning_rate(subject, tmp_path):
+    avatar = dataclasses.replace(TINY_AVATAR, point_colors=True)
+    cfg = TrainConfig(iterations=4, checkpoint_every=4, lr=1e-3, point_color_lr=5e-2, lr_decay_at=(0.5, 0.9), avatar=avatar)
+    state = load_checkpoint(list_checkpoints(train(subject, tmp_path / "p", cfg, progress=False))[-1])
+    groups = state["optimizer"]["param_groups"]
+    assert [len(g["params"]) for g in groups][1] == 1  # point_rgb alone
+    assert groups[0]["lr"] == pytest.approx(1e-4) and groups[1]["lr"] == pytest.approx(5e-3)  # step 3: x0.1
+    assert state["model"]["point_rgb"].shape == (load_run(tmp_path / "p")[0].num_gaussians, 3)
+    assert state["model"]["point_rgb"].abs().max() > 1e-3
+
+
 def test_refuses_to_overwrite_a_run_and_reports_bad_checkpoints(subject, tmp_path):
     cfg = TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY_AVATAR)
     run = train(subject, tmp_path / "r", cfg, progress=False)
@@ -89,6 +101,8 @@ def test_presets_and_bad_values():
         TrainConfig(iterations=0)
     with pytest.raises(ValueError, match="image_scale"):
         TrainConfig(image_scale=2.0)
+    with pytest.raises(ValueError, match="point_color_lr: must be > 0, got 0"):
+        TrainConfig(point_color_lr=0)
 
 
 def test_training_leaves_the_subnormal_setting_as_it_found_it(subject, tmp_path):
