@@ -11,7 +11,7 @@ import math
 import os
 import shutil
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -53,25 +53,44 @@ def _load_json(path: Path) -> Any:
         raise FormatError(f"{path}: malformed JSON: {err}") from None
 
 
-def _load_npz(path: Path) -> dict[str, np.ndarray]:
-    """All arrays of an .npz, loaded without pickle. Any problem -> FormatError naming the file."""
+def _load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an .npz, loaded without pickle. Any problem -> FormatError naming the file.
+
+    ``known``: the array names the format has; another one is refused before any array is read.
+    ``max_bytes``: the most an array may take once decompressed (its zip entry's size), checked before
+    reading, so a small archive cannot expand into gigabytes."""
     if not path.is_file():
         raise FormatError(f"{path}: missing file")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head == b"\x93NUM":
+        raise FormatError(f"{path}: a single .npy array, not an .npz archive of named arrays")
+    if head not in (b"PK\x03\x04", b"PK\x05\x06"):  # numpy would try it as a pickle and advise allow_pickle
+        raise FormatError(f"{path}: not a valid .npz archive (not a zip of .npy arrays: the file starts with {head!r})")
     try:
         archive = np.load(path, allow_pickle=False)
-    except Exception as err:  # not a zip / not an npy: numpy raises several types; all mean "invalid"
+    except Exception as err:  # a damaged zip: numpy raises several types; all mean "invalid"
         raise FormatError(f"{path}: not a valid .npz archive ({type(err).__name__}: {err})") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise FormatError(f"{path}: a single .npy array, not an .npz archive of named arrays")
     key = None
     try:
+        if known is not None:
+            unknown = sorted(set(archive.files) - set(known))
+            if unknown:
+                raise FormatError(f"{path}: {unknown[0]}: unknown array, not read (this format has {sorted(known)})")
+        if max_bytes is not None:
+            for info in archive.zip.infolist():
+                if info.file_size > max_bytes:
+                    raise FormatError(f"{path}: {info.filename.removesuffix('.npy')}: {info.file_size} bytes once "
+                                      f"decompressed, more than the {max_bytes} this file can need; not read")
         arrays = {}
         for key in archive.files:
             arrays[key] = archive[key]
         return arrays
+    except FormatError:
+        raise
     except ValueError as err:
         if "pickle" in str(err) or "Object arrays" in str(err):
-            raise FormatError(f"{path}: {key}: holds Python objects (needs pickle), refused: {err}") from None
+            raise FormatError(f"{path}: {key}: holds Python objects (needs pickle), refused") from None
         raise FormatError(f"{path}: {key}: unreadable array ({err})") from None
     except Exception as err:
         raise FormatError(f"{path}: {key}: unreadable array ({type(err).__name__}: {err})") from None

@@ -60,6 +60,7 @@ LAST_ROW_TOL = 1e-6
 _FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}")  # fullmatch: "$" would pass a final newline
 _FLOAT_ARRAYS = ("poses", "trans", "K", "viewmat")
 _STRING_ARRAYS = ("split", "sequence", "frame_names")
+FRAME_ARRAYS = _FLOAT_ARRAYS + _STRING_ARRAYS + ("poses_true",)  # every array frames.npz may hold
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,7 +210,7 @@ def _check_frames(
     out: dict[str, np.ndarray] = {}
     N, J = num_frames, num_joints
     shapes = {"poses": (N, J, 3), "trans": (N, 3), "K": (N, 3, 3), "viewmat": (N, 4, 4), "poses_true": (N, J, 3)}
-    for key in _FLOAT_ARRAYS + _STRING_ARRAYS + ("poses_true",):
+    for key in FRAME_ARRAYS:
         if key not in arrays or arrays[key] is None:
             if key == "poses_true":
                 continue
@@ -311,9 +312,10 @@ def load_subject(path: str | os.PathLike, check_images: bool = True) -> Subject:
         raise FormatError(f"{body_path}: {err}") from None
 
     frames_path = root / FRAMES_NPZ
-    frames = _check_frames(
-        _load_npz(frames_path), frames_path, meta["num_frames"], body.skeleton.num_joints, meta["sequences"]
-    )
+    N, J = meta["num_frames"], body.skeleton.num_joints
+    longest = max(200, *(len(s) for s in meta["sequences"]))  # characters of a frame or sequence name
+    max_bytes = N * max(J * 3 * 8, 16 * 8, 4 * longest) + 4096  # float64 poses, viewmat, UCS-4 names; header
+    frames = _check_frames(_load_npz(frames_path, FRAME_ARRAYS, max_bytes), frames_path, N, J, meta["sequences"])
     subject = Subject(root=root, meta=meta, body=body, **frames)
     if check_images:
         _check_image_files(subject)

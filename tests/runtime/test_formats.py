@@ -477,6 +477,40 @@ def test_npz_not_a_zip(subject_dir, name):
         load_subject(subject_dir)
 
 
+def test_random_bytes_npz_does_not_relay_numpys_pickle_advice(subject_dir):
+    # issue 18, case 8: numpy reads a file that is neither a zip nor an .npy as a pickle
+    (subject_dir / "frames.npz").write_bytes(np.random.default_rng(0).bytes(400))
+    with pytest.raises(FormatError, match=r"frames\.npz: not a valid \.npz archive \(not a zip of \.npy arrays") as err:
+        load_subject(subject_dir)
+    assert "pickle" not in str(err.value)
+
+
+def test_unknown_and_oversized_arrays_are_refused_before_decompression(subject_dir, monkeypatch):
+    # issue 18, case 10: a 420 KB frames.npz once made 469 MB of memory (an unknown array) and passed validation
+    import zipfile
+
+    with np.load(subject_dir / "frames.npz", allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    reads = []
+    real_open = zipfile.ZipFile.open
+
+    def opened(self, name, *args, **kw):
+        reads.append((Path(self.filename).name, name))
+        return real_open(self, name, *args, **kw)
+
+    np.savez_compressed(subject_dir / "frames.npz", **arrays, junk=np.zeros((4096, 4096)))
+    monkeypatch.setattr(zipfile.ZipFile, "open", opened)
+    with pytest.raises(FormatError, match=r"frames\.npz: junk: unknown array, not read \(this format has \["):
+        load_subject(subject_dir)
+    assert [r for r in reads if r[0] == "frames.npz"] == []  # no array of it was decompressed
+    monkeypatch.undo()
+    np.savez_compressed(subject_dir / "frames.npz", **{**arrays, "trans": np.zeros((5, 4096, 3))})
+    monkeypatch.setattr(zipfile.ZipFile, "open", opened)
+    with pytest.raises(FormatError, match=r"frames\.npz: trans: 491648 bytes once decompressed, more than the \d+ "):
+        load_subject(subject_dir)
+    assert [r for r in reads if r[0] == "frames.npz"] == []
+
+
 def test_npz_truncated(subject_dir):
     data = (subject_dir / "frames.npz").read_bytes()
     (subject_dir / "frames.npz").write_bytes(data[: len(data) // 2])
