@@ -234,7 +234,7 @@ def _render_markdown(r: dict) -> str:
               + f"; peak resident memory of the whole benchmark process {r['peak_rss_mib']} MiB.", ""]
     if "oracle" in r:
         o = r["oracle"]
-        lines += [f"Brute-force oracle (tests/toolkit/render/reference.py, float64, every Gaussian at every pixel), "
+        lines += [f"Brute-force oracle (trioman.runtime.render._reference, float64, every Gaussian at every pixel), "
                   f"one call at {o['size']}x{o['size']}: {o['oracle_s']:.1f} s against {1e3 * o['numpy_s']:.1f} ms for numpy "
                   f"({o['oracle_s'] / o['numpy_s']:.0f}x).", ""]
     return "\n".join(lines)

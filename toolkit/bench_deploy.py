@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trioman.runtime.render._reference import rasterize_reference
 from trioman.toolkit.bench_render import _args, _best, avatar_scene
-from trioman.toolkit.bench_raster import _oracle
 
 OPT_LEVELS = ("disable", "basic", "extended", "all")
 
@@ -65,12 +65,11 @@ def bench_renderer_rows(scene: dict, size: int, repeats: int, oracle_size: int =
         fn = lambda: rasterize_numpy(*a, background=bg, tile_size=tile, extent=extent).rgb  # noqa: E731
         rows.append({"component": "renderer", "variant": f"numpy tile {tile}, {extent} extent ({size}px)",
                      "ms": _ms(fn, repeats), "error": float(np.abs(fn() - ref).max())})
-    oracle = _oracle()
-    if oracle is not None:  # float64, every Gaussian at every pixel: one call, at a small size
+    if oracle_size:  # float64, every Gaussian at every pixel: one call, at a small size
         a = _args(scene, oracle_size)
         small_ref = torch_render(a)()
         t = time.perf_counter()
-        out = oracle(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)
+        out = rasterize_reference(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)
         ms = 1e3 * (time.perf_counter() - t)
         rows.append({"component": "renderer", "variant": f"brute-force oracle float64 ({oracle_size}px)", "ms": ms,
                      "error": float(np.abs(np.asarray(out[0]) - small_ref).max())})

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from trioman.runtime.render import rasterize as rasterize_numpy
-from trioman.toolkit.bench_raster import _oracle
+from trioman.runtime.render._reference import rasterize_reference
 from trioman.toolkit.render import rasterize as rasterize_torch
 
 KEYS = ("means", "quats", "scales", "opacities", "colors")
@@ -110,11 +110,10 @@ def bench_renderers(scene: dict, sizes=(256, 512), repeats: int = 7, oracle_size
             tracemalloc.stop()
         rows.append(row)
     report = {"source": scene["source"], "rows": rows}
-    oracle = _oracle()
-    if oracle is not None:  # one call: seconds per frame at a small size, numpy timed at the same size
+    if oracle_size:  # one call: seconds per frame at a small size, numpy timed at the same size
         a = _args(scene, oracle_size)
         t = time.perf_counter()
-        oracle(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)
+        rasterize_reference(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)
         report["oracle"] = {"size": oracle_size, "oracle_s": time.perf_counter() - t,
                             "numpy_s": _best(lambda: rasterize_numpy(*a, background=bg), repeats)}
     return report

@@ -1,4 +1,4 @@
-"""The numpy splat renderer against the brute-force oracle (tests/toolkit/render/reference.py)."""
+"""The numpy splat renderer against the brute-force oracle (trioman.runtime.render._reference)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tests.conftest import run_python
-from tests.toolkit.render.reference import rasterize_reference
 from tests.toolkit.render.scenes import extreme_scene, orbit_viewmat, random_scene
 from trioman.runtime.render import RenderOutput, rasterize
+from trioman.runtime.render._reference import rasterize_reference
 
 TOL = 1e-5
 KEYS = ("means", "quats", "scales", "opacities", "colors", "viewmat", "K")

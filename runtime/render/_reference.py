@@ -1,7 +1,10 @@
-"""Brute-force Gaussian splatting oracle (numpy): every Gaussian at every pixel, written plainly.
+"""Brute-force Gaussian splatting oracle (numpy, float64): every Gaussian at every pixel, written plainly.
 
-The semantics of DESIGN.md "Conventions" (gsplat's), for the torch rasterizer now and the numpy
-runtime renderer later:
+Private: the reference the renderers are tested and benchmarked against (as gsplat ships its torch
+reference beside its kernels), not a renderer to use. It shares the semantics' constants with
+:mod:`.projection` but none of its arithmetic (no factored covariance, no Cholesky conic, no tiles,
+its own quaternion conversion), so an error in either shows as a disagreement. The semantics are
+those of docs/design.md, "Renderer semantics":
 
 - Sigma = R S S^T R^T (quaternion wxyz normalised, zero -> identity); camera mean m_c = R_v m + t_v,
   Sigma_c = R_v Sigma R_v^T;
@@ -27,13 +30,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from trioman.runtime.render.projection import ALPHA_THRESHOLD, EPS2D, MAX_ALPHA, MAX_EXTENT, TRANSMITTANCE_THRESHOLD
+
 F32 = np.float32
-ALPHA_MIN32 = F32(1.0 / 255.0)
-T_MIN32 = F32(1e-4)
+ALPHA_MIN32 = F32(ALPHA_THRESHOLD)
+T_MIN32 = F32(TRANSMITTANCE_THRESHOLD)
 ONE32 = F32(1.0)
 
 
-def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """One quaternion wxyz [4] -> [3, 3], normalised; zero -> the identity."""
     n = np.sqrt(np.sum(q * q))
     if n == 0:
         return np.eye(3, dtype=q.dtype)
@@ -65,17 +71,17 @@ def project_reference(means, quats, scales, opacities, viewmat, K, width, height
         if z < near_plane or z > far_plane or F32(o) < ALPHA_MIN32:
             out.append(None)
             continue
-        R = quat_to_rotmat(quats[i])
+        R = _quat_to_matrix(quats[i])
         S = np.diag(scales[i])
         Sigma = R @ S @ S.T @ R.T
         Sc = Rv @ Sigma @ Rv.T
         xc = z * min(max(x / z, -lim_x_neg), lim_x_pos)
         yc = z * min(max(y / z, -lim_y_neg), lim_y_pos)
         J = np.array([[fx / z, 0, -fx * xc / z ** 2], [0, fy / z, -fy * yc / z ** 2]], dtype=dtype)
-        cov = J @ Sc @ J.T + 0.3 * np.eye(2, dtype=dtype)
+        cov = J @ Sc @ J.T + EPS2D * np.eye(2, dtype=dtype)
         det = cov[0, 0] * cov[1, 1] - cov[0, 1] * cov[1, 0]
         mean2d = (K[:2] @ mc) / z
-        extent = min(dtype(3.33), np.sqrt(max(dtype(0), 2 * np.log(o * 255))))
+        extent = min(dtype(MAX_EXTENT), np.sqrt(max(dtype(0), 2 * np.log(o * 255))))
         rx, ry = np.ceil(extent * np.sqrt(cov[0, 0])), np.ceil(extent * np.sqrt(cov[1, 1]))
         if det <= 0 or (rx <= 0 and ry <= 0):
             out.append(None)
@@ -124,7 +130,7 @@ def rasterize_reference(
         dx, dy = px - mx, py - my
         in_box = (np.abs(dx) <= rx) & (np.abs(dy) <= ry)
         sigma = 0.5 * (A * dx * dx + Cc * dy * dy) + B * dx * dy
-        alpha = np.minimum(dtype(0.99), p["opacity"] * np.exp(-sigma))
+        alpha = np.minimum(dtype(MAX_ALPHA), p["opacity"] * np.exp(-sigma))
         a32 = alpha.astype(F32)
         use = in_box & ~done & (sigma >= 0) & (a32 >= ALPHA_MIN32)
         next_T32 = T32 * (ONE32 - a32)  # float32 arithmetic
