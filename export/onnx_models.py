@@ -12,7 +12,7 @@ writes, into a temporary sibling folder renamed onto ``out`` at the end (an erro
     export.json                               per file: precision, bytes, sha256, parity vs torch, gates, seconds
 
 Every file carries the ``trioman.*`` metadata that ``trioman.runtime.models`` requires (docs/formats.md,
-"ONNX models"). Checks, in order (DESIGN.md, "Deployment notes"):
+"ONNX models"). Checks, in order (docs/design.md, "Deployment (ONNX)"):
 
 - the exported dims: dim 0 of every input and of the output symbolic, the rest static (= the input size);
 - ``onnx.checker.check_model(full_check=True)``;
@@ -65,7 +65,7 @@ EXPORTER = "torch.onnx.export, TorchScript (legacy) exporter, dynamo=False"
 TRACE_BATCH = 2  # trace with batch >= 2 (a traced size-1 batch may be specialised)
 PARITY_BATCHES = (1, 3)  # other batch sizes than the traced one
 BATCH_AXIS = "batch"
-REFINER_ATOL = 1e-3  # max |onnxruntime - torch| on refined images (DESIGN.md, Deployment notes)
+REFINER_ATOL = 1e-3  # max |onnxruntime - torch| on refined images (docs/design.md, Deployment)
 EXAMINER_ATOL = 1e-4  # on Examiner scores
 INT8_MAX_PSNR_DROP_DB = 0.3  # Refiner int8 gate: refined-vs-GT PSNR within this of fp32's
 INT8_MIN_AGREEMENT = 0.98  # Examiner int8 gate: keep/drop decisions agreeing with fp32's

@@ -1,7 +1,7 @@
 """Vectorised numpy z-buffer triangle rasterizer (no torch).
 
 Used to render the synthetic subjects' meshes, to bake textures in UV space and to render body
-normal maps. Conventions (DESIGN.md): OpenCV camera (x right, y down, z forward), ``viewmat``
+normal maps. Conventions (docs/design.md): OpenCV camera (x right, y down, z forward), ``viewmat``
 world->camera [4, 4], ``K`` [3, 3] in pixels, pixel (i, j) has its centre at x = j + 0.5,
 y = i + 0.5; images are [H, W, ...] float32.
 

@@ -3,7 +3,7 @@
 Tensors are batched NCHW floats in [0, 1] (``[B, C, H, W]``); every metric returns one value per
 image (``[B]``) and is differentiable, so ``1 - ssim(...)`` serves as a training loss.
 
-Evaluation protocol (ExAvatar's NeuMan / X-Humans evaluation, reference/exavatar.md section 3):
+Evaluation protocol (ExAvatar's NeuMan / X-Humans evaluation, docs/design.md, "Evaluation protocol"):
 the GT mask is applied to BOTH prediction and GT on a white background (:func:`composite_on`), then
 PSNR and SSIM with data_range 1 (torchmetrics semantics) and LPIPS-AlexNet (:mod:`.lpips`, inputs
 scaled to [-1, 1]) on the full image, no crop; per-frame values are averaged (:class:`FrameMetrics`).

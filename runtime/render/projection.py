@@ -1,4 +1,4 @@
-"""Input checks and the EWA projection of 3D Gaussians to the image (gsplat's semantics, DESIGN.md).
+"""Input checks and the EWA projection of 3D Gaussians to the image (docs/design.md, "Renderer semantics").
 
 The numpy twin of ``trioman.toolkit.render.projection``: the same float64 arithmetic and the same two
 numerically careful choices, so extreme Gaussians (scales 1e-6 .. 1e2 m, anisotropy 1e6, centres on
@@ -198,7 +198,7 @@ def project(
     Rv, tv = vm[:3, :3], vm[:3, 3]
     fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
     # 0. a float32 pre-filter, generous enough never to drop a Gaussian the exact float64 tests keep,
-    # so Gaussians the view does not need cost a few float32 passes (DESIGN: cost follows the view)
+    # so Gaussians the view does not need cost a few float32 passes
     ids = _prefilter(means, scales, opacities, Rv, tv, Kd, width, height, near_plane, far_plane)
     # 1. centre depth and opacity (the opacity cull compares float32 values, like gsplat)
     z_all = _rows(means, ids) @ Rv[2] + tv[2]

@@ -1,4 +1,4 @@
-"""Tile rasterizer for 3D Gaussians in numpy (gsplat's semantics, DESIGN.md; no torch).
+"""Tile rasterizer for 3D Gaussians in numpy (docs/design.md, "Renderer semantics"; no torch).
 
 Semantics, per pixel with centre (j + 0.5, i + 0.5), visible Gaussians front to back by centre depth
 (ties by index), each only within its radius box (:mod:`.tiles`):

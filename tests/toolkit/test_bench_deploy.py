@@ -45,7 +45,7 @@ def test_model_rows_cover_every_variant(trained, corpus, tmp_path):  # noqa: F81
     measured = [r for r in rows if r["ms"] is not None]
     assert all(r["ms"] > 0 and np.isfinite(r["error"]) for r in measured)
     fp32 = [r for r in measured if "fp32," in r["variant"]]
-    assert all(r["error"] <= (1e-3 if r["component"] == "refiner" else 1e-4) for r in fp32)  # DESIGN.md parity
+    assert all(r["error"] <= (1e-3 if r["component"] == "refiner" else 1e-4) for r in fp32)  # docs/design.md, Deployment
     assert all(r["agreement"] == 1.0 for r in fp32 if r["component"] == "examiner")
     rejected = json.loads((onnx / "export.json").read_text())["rejected"]
     assert all(("note" in r) == (r["ms"] is None) for r in rows) and len(rows) - len(measured) == len(rejected)

@@ -1,4 +1,4 @@
-"""The Gaussian avatar (after ExAvatar, see shared/reference/exavatar.md).
+"""The Gaussian avatar (after ExAvatar; docs/design.md, "Baseline avatar").
 
 One Gaussian per canonical body-mesh vertex (optionally subdivided or subsampled). A triplane is
 sampled at the canonical positions and MLPs predict a position offset, a scale (isotropic by

@@ -1,7 +1,7 @@
 """Backbone registry: ``create_refiner`` builds the model named by ``RefinerConfig.backbone``.
 
 "scratch" is the from-scratch :class:`Refiner`. "sd-turbo" is the extension point for the paper's
-pretrained backbone (SD-Turbo VAE + U-Net, as in Difix, reference/refiner.md): it checks what such a
+pretrained backbone (SD-Turbo VAE + U-Net, as in Difix; docs/design.md, "Refiner"): it checks what such a
 build needs (the diffusers package and a local SD-Turbo folder in diffusers layout; nothing is ever
 downloaded) and says what is missing; the adapter itself is not written yet.
 """

@@ -1,4 +1,4 @@
-"""Input checks and the EWA projection of 3D Gaussians to the image (gsplat's semantics, DESIGN.md).
+"""Input checks and the EWA projection of 3D Gaussians to the image (docs/design.md, "Renderer semantics").
 
 Everything here runs in float64 whatever the input dtype (the projection costs O(N), the pixels
 dominate), with autograd. Two numerically careful choices make the float64 values reliable even for

@@ -1,4 +1,4 @@
-"""Differentiable tile rasterizer for 3D Gaussians on the CPU (gsplat's semantics, DESIGN.md).
+"""Differentiable tile rasterizer for 3D Gaussians on the CPU (docs/design.md, "Renderer semantics").
 
 Semantics, per pixel with centre (j + 0.5, i + 0.5), visible Gaussians front to back by centre depth
 (ties by index), each only within its radius box (:mod:`.tiles`):
