@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine (Python 3.11):
 #   make demo   create .venv, install CPU torch + trioman[train,smplx,dev], run the demo
-#   make test   the same install, then the test suite
+#   make test   the same install, then ruff check and the test suite
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -8,7 +8,7 @@ OUT    ?= out/demo
 # The CPU build of torch; a bare "torch" would pull a multi-GB CUDA build.
 TORCH  ?= torch==2.13.0
 
-.PHONY: demo test test-all install clean
+.PHONY: demo lint test test-all install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,10 +24,13 @@ install: $(VENV)/.installed
 demo: install
 	$(BIN)/trioman demo --out $(OUT)
 
-test: install
+lint: install
+	$(BIN)/ruff check .
+
+test: lint
 	$(BIN)/python -m pytest -q -m "not slow"
 
-test-all: install
+test-all: lint
 	$(BIN)/python -m pytest -q
 
 clean:

@@ -28,7 +28,6 @@ records at the end; only the timings differ).
 from __future__ import annotations
 
 import json
-import math
 import numbers
 import os
 import shutil

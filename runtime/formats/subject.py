@@ -15,7 +15,6 @@ folder and renames it into place at the end, so ``path`` is never left half-writ
 from __future__ import annotations
 
 import json
-import math
 import operator
 import os
 import re

@@ -3,7 +3,6 @@ subject, a tiny exported avatar and tiny exported ONNX models; records, summary,
 resume after an interruption, refusals and bad inputs; a run without torch."""
 
 import json
-import shutil
 from pathlib import Path
 from types import SimpleNamespace
 

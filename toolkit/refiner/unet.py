@@ -24,7 +24,7 @@ class _Level(nn.Module):
 class ViewUNet(nn.Module):
     """Latents [B * V, c, h, w] in (b v) order -> refined latents [B * V, c, h, w], in one step.
 
-    Level l (0 = latent resolution) runs at 1 / 2**l with ``widths[l]`` channels; levels >=
+    Level i (0 = latent resolution) runs at 1 / 2**i with ``widths[i]`` channels; levels >=
     ``attention_from`` and the middle add :class:`ViewAttention` across the V views; the up path
     concatenates each level's down output. A learned per-view role embedding (coarse, texture,
     geometry) is added after the input conv, so attention can tell the views apart. One step: there
@@ -49,18 +49,18 @@ class ViewUNet(nn.Module):
         self.conv_in = conv3x3(latent_channels, widths[0])
         self.view_embed = nn.Parameter(torch.randn(views, widths[0]) * 0.02)  # [V, widths[0]]
         self.down = nn.ModuleList(
-            _Level(widths[l], widths[l], views, heads, groups, l >= attention_from, fused) for l in range(levels)
+            _Level(widths[i], widths[i], views, heads, groups, i >= attention_from, fused) for i in range(levels)
         )
-        self.downsample = nn.ModuleList(Downsample(widths[l], widths[l + 1]) for l in range(levels - 1))
+        self.downsample = nn.ModuleList(Downsample(widths[i], widths[i + 1]) for i in range(levels - 1))
         self.mid = nn.Sequential(
             ResBlock(widths[-1], widths[-1], groups),
             ViewAttention(widths[-1], views, heads, groups, fused),
             ResBlock(widths[-1], widths[-1], groups),
         )
         self.up = nn.ModuleList(
-            _Level(2 * widths[l], widths[l], views, heads, groups, l >= attention_from, fused) for l in range(levels)
+            _Level(2 * widths[i], widths[i], views, heads, groups, i >= attention_from, fused) for i in range(levels)
         )
-        self.upsample = nn.ModuleList(Upsample(widths[l + 1], widths[l]) for l in range(levels - 1))
+        self.upsample = nn.ModuleList(Upsample(widths[i + 1], widths[i]) for i in range(levels - 1))
         self.norm_out = nn.GroupNorm(groups, widths[0])
         self.conv_out = conv3x3(widths[0], latent_channels)
 
@@ -70,14 +70,14 @@ class ViewUNet(nn.Module):
         c = x.shape[1]
         x = (x.reshape(-1, self.views, c, h, w) + self.view_embed[None, :, :, None, None]).reshape(-1, c, h, w)
         skips = []
-        for l, level in enumerate(self.down):
+        for i, level in enumerate(self.down):
             x = level(x)
             skips.append(x)
-            if l < len(self.downsample):
-                x = self.downsample[l](x)
+            if i < len(self.downsample):
+                x = self.downsample[i](x)
         x = self.mid(x)
-        for l in reversed(range(len(self.up))):
-            x = self.up[l](torch.cat([x, skips[l]], dim=1))
-            if l > 0:
-                x = self.upsample[l - 1](x)
+        for i in reversed(range(len(self.up))):
+            x = self.up[i](torch.cat([x, skips[i]], dim=1))
+            if i > 0:
+                x = self.upsample[i - 1](x)
         return z + self.conv_out(F.silu(self.norm_out(x)))
