@@ -1,1 +1,1 @@
-"""trioman.export: torch -> ONNX and checkpoint -> portable avatar files (later issues)."""
+"""trioman.export: torch -> ONNX (Refiner, Examiner) and checkpoint -> portable avatar folder."""

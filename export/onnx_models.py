@@ -27,7 +27,7 @@ Every file carries the ``trioman.*`` metadata that ``trioman.runtime.models`` re
 
 The traced Refiner is an exportable copy whose GroupNorms subtract each group's mean first (the same
 function; onnxruntime's InstanceNormalization kernel, which the GroupNorm export goes through, computes
-the variance in one pass and loses precision on uncentred groups: 5x the parity error on real frames).
+the variance in one pass and loses precision on uncentred groups).
 
 Sizes: the Refiner is convolutional and trained on crops, so its export size is ``size`` if given,
 else the calibration triplets' frame size, else its config's ``image_size`` (a multiple of its total
@@ -78,9 +78,8 @@ VARIANT_PARITY_FRAMES = 8  # int8/fp16 parity with torch (informative, not gated
 REFINER_BATCH_PIXELS = 256 * 256
 REFINER_MAX_BATCH = 8
 VARIANTS = ("fp32", "int8", "fp16")
-# Refiner int8: the ops with weights (and the attention MatMuls) only. Quantizing every op as well
-# (Add, Mul, Sigmoid, InstanceNorm, ...) measured no better accuracy, a larger file and 4x the
-# calibration time.
+# Refiner int8: the ops with weights (and the attention MatMuls) only; quantizing every op buys no
+# accuracy (docs/findings.md, "ONNX export").
 REFINER_INT8_OPS = ("Conv", "MatMul", "Gemm")
 EXPORT_JSON = "export.json"
 REPORT_FORMAT = "trioman-onnx-export"
@@ -130,7 +129,7 @@ class _CenteredGroupNorm(nn.GroupNorm):
     """GroupNorm that subtracts each group's mean before normalising: the same function, but exported as
     ReduceMean + Sub before ONNX InstanceNormalization, whose onnxruntime CPU kernel computes the variance
     in one pass (E[x^2] - E[x]^2) and loses precision when a group's mean is large against its spread
-    (measured: 2e-4 off at mean/std = 1000; 2.5e-4 on a compact Refiner's real frames, vs 1e-6 centred)."""
+    (docs/findings.md, "ONNX export")."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         g = x.reshape(x.shape[0], self.num_groups, -1)

@@ -37,8 +37,8 @@ def examiner_batch(t: Tuples) -> ExaminerBatch:
     return ExaminerBatch(gt=nchw(t.gt), coarse=nchw(t.coarse), reference=nchw(t.reference))
 
 
-# Refiner sizes for CPU training: "compact" trains ~3x faster than the default widths (1.1M vs 4.5M
-# parameters with tex+geo), which is what a 2-core machine affords; "default" is RefinerConfig's.
+# Refiner sizes: "compact" (narrower widths, for CPU training; docs/findings.md, "Refiner"), "default"
+# is RefinerConfig's.
 REFINER_SIZES = {"compact": dict(vae_widths=(16, 32, 48), unet_widths=(32, 64, 64)), "default": {}}
 
 

@@ -32,9 +32,9 @@ pixels stay accurate for extreme and far-off-centre Gaussians.
 
 Tile size. The dense cost is pairs x s^2, the binning cost grows with pairs. The avatar's Gaussians
 are small (radius boxes ~9 px at 256 x 256) and its background pixels never stop, so tiles rarely
-leave the walk early and the dense cost dominates: 4 x 4 tiles (``DEFAULT_TILE``) render the default
-avatar at 256 x 256 about 20 % faster than 8 x 8 and 1.6 x faster than 2 x 2 (2-core x86_64,
-``trioman bench render`` has the current numbers). The result does not depend on the tile size.
+leave the walk early and the dense cost dominates: small tiles (``DEFAULT_TILE`` = 4) suit it, larger
+ones waste pixels, smaller ones cost binning (``trioman bench render`` measures them; docs/findings.md,
+"Renderers"). The result does not depend on the tile size.
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ from trioman.runtime.render.projection import (
 from trioman.runtime.render.tiles import bin_gaussians
 
 DEFAULT_TILE = 4  # tile side in pixels (module doc)
-DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array);
-# 4 x larger blocks were 2-3 x slower on a loaded 2-core machine (OpenBLAS threads [n, 3] @ [3, s^2] then)
+DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array): blocks
+# small enough that the [n, 3] @ [3, s^2] products stay on one BLAS thread (docs/findings.md, "Renderers")
 KB_MIN = 8  # shortest block along the lists
 
 _F32 = np.float32

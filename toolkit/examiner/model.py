@@ -17,14 +17,14 @@ Design choices the paper leaves open (documented here, tested in tests/toolkit/e
   temperature); each patch's output mixes the channels of V at that same patch, so the upper branch
   lives on the candidate's patches and its residual is f_c (the lower branch's is f_k).
   ``"token"``: the usual [N, N] map; the output lives on the reference's patches and both residuals
-  are f_k (a transformer decoder's cross-attention). Measured on the synthetic corpus (bench models),
-  the token reading never left the 3:1 prior: the candidate only reaches the heads as an average over
-  mostly background patches. Checkpoints saved before the field existed are token models.
+  are f_k (a transformer decoder's cross-attention); there the candidate reaches the heads only as an
+  average over mostly background patches (docs/findings.md, "Examiner"). Checkpoints saved before the
+  field existed are token models.
 - ``detail_gain`` g > 0 feeds the ViT the normalised image plus g times its detail layer
   (image - Gaussian blur of ``detail_sigma`` px, edge padding; an unsharp mask, a fixed depthwise
   conv inside the graph, so ONNX and the runtime need nothing else). The Refiner's coarse frames
-  differ from real ones mostly in fine detail; trained from scratch on ten subjects, the plain ViT
-  learned the subjects' textures instead (see ``EXAMINER_CONFIGS``). 0 is the paper's plain input.
+  differ from real ones mostly in fine detail, which the plain input lets a from-scratch ViT ignore
+  in favour of the subjects' textures (docs/findings.md, "Examiner"). 0 is the paper's plain input.
 - the backbone's class token is dropped before the dual blocks (it only takes part in V's attention);
 - the attention layer, the squeeze conv and the heads are shared by both branches, so a candidate
   equal to the reference gives an upper branch identical to the lower one: the lower branch's score
@@ -109,10 +109,8 @@ class ExaminerConfig:
 
 # Named configurations. examiner_tiny / examiner_small have the backbone layout of timm's
 # vit_tiny_patch16_224 / vit_small_patch16_224, so those checkpoints load (pos_embed resampled), and
-# the plain input pretrained weights expect. examiner_nano is the from-scratch CPU model: its detail
-# input (gain 16) took the held-out AUROC of ``trioman bench models`` (1000 steps, the step chosen on
-# a validation subject; the paper's pairs) from 0.89 with the plain input to 0.98 (against the
-# nearest-view frame: 0.78 -> 0.94); in trial runs gain 8 gave 0.95 and gain 32 swung 0.81-0.94.
+# the plain input pretrained weights expect. examiner_nano is the from-scratch CPU model, with the
+# detail input at gain 16 (the choice and its measurements: docs/findings.md, "Examiner").
 EXAMINER_CONFIGS: dict[str, ExaminerConfig] = {
     "examiner_nano": ExaminerConfig(patch_size=8, embed_dim=96, depth=4, num_heads=3, dual_dims=(64, 32), detail_gain=16.0),
     "examiner_tiny": ExaminerConfig(),

@@ -49,12 +49,9 @@ def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "con
     probability (coin flips from ``rng``), its real or its coarse pair (last B rows); over many draws
     1/2 identical, 1/4 real, 1/4 coarse.
     ``pairing="contrast"`` (default): 2B pairs, every sample's real pair (first B rows) and coarse
-    pair (last B rows): the two frames meet the same reference in the same step.
-    Measured on the synthetic corpus (``trioman bench models``, held-out subjects, paper's pairs, the
-    plain ViT input): the paper's draw left our from-scratch Examiner at the 3:1 prior (AUROC 0.51);
-    identical + real + coarse per sample, class-balanced, learned but generalised worse (0.65) than
-    real + coarse alone (0.77): identical pairs teach "candidate equals reference", which no real
-    frame at another time does.
+    pair (last B rows): the two frames meet the same reference in the same step. Identical pairs are
+    left out because they teach "candidate equals reference", which no real frame at another time is
+    (docs/findings.md, "Examiner").
     """
     check_batch(batch)
     if pairing not in PAIRINGS:
