@@ -11,7 +11,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import secrets
+import shutil
 import struct
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -55,6 +57,31 @@ def _fsync_file(path: PathLike) -> None:
 def temp_sibling(path: Path, suffix: str = "") -> Path:
     """A fresh hidden name next to ``path`` (``.NAME.XXXXXXXX.tmpSUFFIX``); nothing is created."""
     return path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{suffix}")
+
+
+# The one pattern of every temporary name (temp_sibling): what a kill -9 may leave behind.
+_TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.tmp(\.[A-Za-z0-9]+)?")
+
+
+def is_temp_name(name: str) -> bool:
+    """Whether ``name`` is a temporary file or folder name made by :func:`temp_sibling`."""
+    return _TEMP_NAME.fullmatch(name) is not None
+
+
+def remove_temp_files(folder: PathLike) -> list[Path]:
+    """Remove the temporary files and folders (:func:`is_temp_name`) under ``folder``, at any depth, that an
+    interrupted write left behind; nothing else. -> what was removed."""
+    removed = []
+    for root, dirs, files in os.walk(folder):
+        for name in [d for d in dirs if is_temp_name(d)]:
+            shutil.rmtree(Path(root) / name)
+            dirs.remove(name)
+            removed.append(Path(root) / name)
+        for name in files:
+            if is_temp_name(name):
+                (Path(root) / name).unlink()
+                removed.append(Path(root) / name)
+    return sorted(removed)
 
 
 def _create_temp(path: Path, suffix: str) -> Path:

@@ -30,7 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     aug.add_argument("--augment-pool", type=int, default=None, help="pseudo-GT frames per rebuild (default 8)")
     aug.add_argument("--augment-share", type=float, default=None, help="share of steps after the warm-up on pseudo-GT frames (default 0.5)")
     aug.add_argument("--augment-weight", type=float, default=None, help="loss weight of a pseudo-GT frame (default 1)")
-    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its latest checkpoint (same subject, options and trioman "
+                             "version as the run, else refused naming what differs)")
+    parser.add_argument("--extend-iterations", type=int, default=None, metavar="N",
+                        help="with --resume: continue the run to N iterations in total, more than it was started with "
+                             "(the learning-rate schedule follows N; recorded in RUN/config.json)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -58,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
         overrides["augment"] = augment
     cfg = preset(args.preset, **overrides)
     lpips = load_lpips_or_say_why("train")
-    run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet, lpips=lpips)
+    run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet, lpips=lpips,
+                    extend_iterations=args.extend_iterations)
     print(f"train: run {run_dir} (checkpoints in {Path(run_dir) / 'checkpoints'}, log {Path(run_dir) / 'train_log.csv'})")
     return 0
 

@@ -13,15 +13,16 @@ from tqdm import tqdm
 
 from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
-from trioman.runtime.image_io import atomic_write_text
+from trioman.runtime.image_io import atomic_write_text, naming_os_errors, remove_temp_files
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
-from trioman.toolkit.cpu import flush_denormals
+from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
 from trioman.toolkit.metrics import psnr, ssim
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.data import FrameSet, join_frames, load_frames
+from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
 AUGMENT_JSON = "augment.json"  # run/augment.json: the online augmentation's counts and stage times
@@ -72,19 +73,20 @@ def regularisers(model: GaussianAvatar, out, cfg: TrainConfig) -> torch.Tensor:
     return reg
 
 
-def _prepare_run(run: Path, subject_path: Path, cfg: TrainConfig, resume: bool) -> TrainConfig:
-    cfg_file = run / "config.json"
-    if cfg_file.exists():
-        if not resume:
-            raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
-        saved = json.loads(cfg_file.read_text())
-        return TrainConfig.from_dict(saved["train"])
-    run.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(cfg_file, json.dumps({
-        "trioman_version": __version__, "subject": str(subject_path.resolve()), "config_hash": cfg.digest(),
-        "train": cfg.to_dict(),
-    }, indent=2) + "\n")
-    return cfg
+def _prepare_run(run: Path, subject: Subject, cfg: TrainConfig, resume: bool,
+                 extend_iterations: int | None) -> tuple[TrainConfig, dict]:
+    """-> the config to train with and the run's record (config.json), checked against the run when resuming
+    (toolkit/train/resume.py); writes nothing but removes an interrupted run's temporary files."""
+    if not (run / CONFIG_JSON).exists():
+        if extend_iterations is not None:
+            raise FileNotFoundError(f"--extend-iterations: no run in {run} to extend")
+        return cfg, new_record(subject, cfg)
+    if not resume:
+        raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
+    remove_temp_files(run)
+    ckpt = latest_checkpoint(run)
+    step = 0 if ckpt is None else int(ckpt.stem.split("_")[1])
+    return check_resume(run, read_record(run), subject, cfg, step, extend_iterations)
 
 
 def _extra_subject(cfg: TrainConfig, subject: Subject) -> Subject:
@@ -110,23 +112,28 @@ def _trim_log(log: Path, step: int) -> None:
 
 
 @flush_denormals()
+@deterministic_kernels()
 def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: bool = False, progress: bool = True,
-          stop_after: int | None = None, lpips=None, on_checkpoint: Callable[[int, Path], None] | None = None) -> Path:
+          stop_after: int | None = None, lpips=None, on_checkpoint: Callable[[int, Path], None] | None = None,
+          extend_iterations: int | None = None) -> Path:
     """Train an avatar on the subject's training frames (plus ``cfg.extra_frames``) into the folder ``run``.
 
-    ``stop_after`` ends the loop after that many steps of this call (to test interruption);
-    ``on_checkpoint(step, path)`` is called after each checkpoint (benchmarks evaluate there).
+    ``resume`` continues the run in ``run`` when the subject, config and code are the run's (else ValueError
+    naming what differs); ``extend_iterations`` continues it to that many iterations in total (recorded in
+    config.json). Same seed and thread count, same weights (deterministic kernels). ``stop_after`` ends the
+    loop after that many steps of this call (to test interruption); ``on_checkpoint(step, path)`` is called
+    after each checkpoint (benchmarks evaluate there). config.json is written once every input has loaded.
     """
     run, subject_path = Path(run), Path(subject_path)
-    if not resume and (run / "config.json").exists():
+    if not resume and (run / CONFIG_JSON).exists():
         raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
+    if extend_iterations is not None and not resume:
+        raise ValueError("--extend-iterations: needs --resume (it continues a run)")
     subject = load_subject(subject_path)
-    fresh = not (resume and (run / "config.json").exists())
-    extra = _extra_subject(cfg, subject) if fresh and cfg.extra_frames is not None else None  # before writing
-    cfg = _prepare_run(run, subject_path, cfg, resume)
+    cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
     frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
     if cfg.extra_frames is not None:  # uniform sampling over the union of both frame sets
-        extra = extra if extra is not None else _extra_subject(cfg, subject)
+        extra = _extra_subject(cfg, subject)
         frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
     model = GaussianAvatar(subject.body, cfg.avatar)
     augmenter = None if cfg.augment is None else Augmenter(cfg.augment, subject, frames, cfg.iterations, cfg.seed)
@@ -144,6 +151,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         torch_gen.set_state(state["torch_rng"])
         if augmenter is not None:
             augmenter.load_state_dict(state["augment"])
+    write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
     log = run / "train_log.csv"
     _trim_log(log, step)
 
@@ -162,7 +170,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     bar = tqdm(total=cfg.iterations, initial=step, desc="train", unit="it", disable=None if progress else True)
     done_here = 0
     run_psnr = None
-    with log.open("a") as log_file:
+    with naming_os_errors(log), log.open("a") as log_file:
         while step < cfg.iterations and (stop_after is None or done_here < stop_after):
             t0 = time.perf_counter()
             for group in optimizer.param_groups:

@@ -122,7 +122,10 @@ def test_resume_with_extra_frames_matches_an_uninterrupted_run(subjects, tmp_pat
     cfg = TrainConfig(iterations=6, checkpoint_every=3, avatar=TINY_AVATAR, extra_frames=str(aug), extra_weight=0.7)
     straight = train(subject, tmp_path / "a", cfg, progress=False)
     broken = train(subject, tmp_path / "b", cfg, progress=False, stop_after=4)
-    train(subject, broken, TrainConfig(iterations=6, avatar=TINY_AVATAR), resume=True, progress=False)  # saved cfg wins
+    with pytest.raises(ValueError, match=r"the training config differs from the run's \(checkpoint_every: 3 -> 250; "
+                                         r"extra_frames: .* -> None; extra_weight: 0\.7 -> 1\.0\)"):
+        train(subject, broken, TrainConfig(iterations=6, avatar=TINY_AVATAR), resume=True, progress=False)
+    train(subject, broken, cfg, resume=True, progress=False)
     a, b = load_checkpoint(list_checkpoints(straight)[-1]), load_checkpoint(list_checkpoints(broken)[-1])
     assert a["step"] == b["step"] == 6
     for key in a["model"]:

@@ -3,6 +3,7 @@
 import csv
 import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
+from tests.conftest import run_python  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
 from trioman.toolkit.evaluate import evaluate, load_run  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
@@ -111,3 +113,138 @@ def test_training_leaves_the_subnormal_setting_as_it_found_it(subject, tmp_path)
     assert not denormals_flushed()
     train(subject, tmp_path / "d", TrainConfig(iterations=1, checkpoint_every=1, avatar=TINY_AVATAR), progress=False)
     assert not denormals_flushed()
+
+
+# --------------------------------------------------------------------------------------------------
+# resume checks what it resumes; a bad input leaves no run; deterministic weights (issue 18, cases 1, 3, 4, 6)
+
+
+def copy_subject(subject, dest):
+    shutil.copytree(subject, dest)
+    return dest
+
+
+def test_resume_refuses_another_subject_config_or_code_naming_what_differs(subject, tmp_path, monkeypatch):
+    cfg = TrainConfig(iterations=4, checkpoint_every=2, avatar=TINY_AVATAR)
+    mine = copy_subject(subject, tmp_path / "mine")
+    run = train(mine, tmp_path / "run", cfg, progress=False, stop_after=2)  # killed after its first checkpoint
+    record = (run / "config.json").read_text()
+    other = copy_subject(subject, tmp_path / "other")  # same content, another subject folder
+    with pytest.raises(ValueError, match=rf"--resume: .*config.json: the run trains on the subject {mine}, not {other}"):
+        train(other, run, cfg, resume=True, progress=False)
+    with pytest.raises(ValueError, match=r"the training config differs from the run's \(iterations: 4 -> 5000; "
+                                         r"preset: 'quick' -> 'full'; seed: 0 -> 7\).*--extend-iterations"):
+        train(mine, run, dataclasses.replace(cfg, preset="full", seed=7, iterations=5000), resume=True, progress=False)
+    import trioman.toolkit.train.resume as resume_module
+
+    monkeypatch.setattr(resume_module, "__version__", "9.9.9")
+    with pytest.raises(ValueError, match=r"the run was made by trioman 0\.1\.0, this is trioman 9\.9\.9"):
+        train(mine, run, cfg, resume=True, progress=False)
+    monkeypatch.undo()
+    mask = sorted((mine / "masks").iterdir())[0]
+    shutil.copy(sorted((mine / "masks").iterdir())[1], mask)  # the subject's content changes under the run
+    with pytest.raises(ValueError, match=rf"the subject {mine} changed since the run started"):
+        train(mine, run, cfg, resume=True, progress=False)
+    assert (run / "config.json").read_text() == record
+    assert [p.name for p in list_checkpoints(run)] == ["ckpt_0000002.pt"]
+
+
+def test_extend_iterations_continues_the_run_and_records_it(subject, tmp_path):
+    cfg = TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY_AVATAR)
+    run = train(subject, tmp_path / "run", cfg, progress=False)
+    with pytest.raises(ValueError, match="--extend-iterations: 2 is not more than the run's 2 iterations"):
+        train(subject, run, cfg, resume=True, progress=False, extend_iterations=2)
+    with pytest.raises(ValueError, match="--extend-iterations: needs --resume"):
+        train(subject, tmp_path / "new", cfg, progress=False, extend_iterations=4)
+    train(subject, run, cfg, resume=True, progress=False, extend_iterations=4)
+    assert load_checkpoint(list_checkpoints(run)[-1])["step"] == 4 and len(losses(run)) == 4
+    saved = json.loads((run / "config.json").read_text())
+    assert saved["train"]["iterations"] == 4 and saved["config_hash"] == dataclasses.replace(cfg, iterations=4).digest()
+    assert [(e["from_step"], e["iterations_before"], e["iterations"]) for e in saved["extensions"]] == [(2, 2, 4)]
+    train(subject, run, dataclasses.replace(cfg, iterations=4), resume=True, progress=False)  # the extended run resumes
+
+
+def test_a_train_that_fails_on_a_bad_input_leaves_no_run(subject, tmp_path):
+    broken = copy_subject(subject, tmp_path / "broken")
+    image = sorted((broken / "images").iterdir())[0]
+    good = image.read_bytes()
+    image.write_bytes(good[:40])  # the PNG header passes validation, the pixels do not decode
+    cfg = TrainConfig(iterations=1, checkpoint_every=1, avatar=TINY_AVATAR)
+    with pytest.raises(ValueError, match=rf"{image.name}: not a readable image"):
+        train(broken, tmp_path / "run", cfg, progress=False)
+    assert not (tmp_path / "run").exists()
+    image.write_bytes(good)
+    train(broken, tmp_path / "run", cfg, progress=False)  # the rerun after the fix needs no --resume
+
+
+def test_resume_removes_temporary_files_and_nothing_else(subject, tmp_path):
+    cfg = TrainConfig(iterations=4, checkpoint_every=2, avatar=TINY_AVATAR)
+    run = train(subject, tmp_path / "run", cfg, progress=False, stop_after=2)
+    stray = [run / "checkpoints" / ".ckpt_0000004.pt.0123abcd.tmp.pt", run / ".train_log.csv.deadbeef.tmp.csv"]
+    for p in stray:
+        p.write_bytes(b"left by kill -9")
+    (run / "notes.txt").write_text("mine")
+    train(subject, run, cfg, resume=True, progress=False)
+    assert not any(p.exists() for p in stray) and (run / "notes.txt").read_text() == "mine"
+
+
+@pytest.fixture
+def two_threads():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_kill_9_and_resume_gives_the_weights_of_an_uninterrupted_run(subject, tmp_path, two_threads):
+    # Default settings at two torch threads: the killed process is a real SIGKILL right after its first checkpoint.
+    cfg = TrainConfig(iterations=6, checkpoint_every=3, avatar=TINY_AVATAR)
+    killed = tmp_path / "killed"
+    proc = run_python(f"""
+        import os, signal, torch
+        torch.set_num_threads(2)
+        from trioman.toolkit.avatar.model import AvatarConfig
+        from trioman.toolkit.train.config import TrainConfig
+        from trioman.toolkit.train.loop import train
+        cfg = TrainConfig.from_dict({cfg.to_dict()!r})
+        train({str(subject)!r}, {str(killed)!r}, cfg, progress=False,
+              on_checkpoint=lambda step, path: os.kill(os.getpid(), signal.SIGKILL))
+    """, timeout=600)
+    assert proc.returncode == -9, proc.stderr
+    assert [p.name for p in list_checkpoints(killed)] == ["ckpt_0000003.pt"]
+    train(subject, killed, cfg, resume=True, progress=False)
+    straight = train(subject, tmp_path / "straight", cfg, progress=False)
+    a, b = load_checkpoint(list_checkpoints(straight)[-1]), load_checkpoint(list_checkpoints(killed)[-1])
+    assert a["step"] == b["step"] == 6
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    np.testing.assert_array_equal(losses(straight), losses(killed))
+    assert json.loads((killed / "config.json").read_text())["threads"] == 2
+
+
+def test_command_line_resume_refusal_and_extension(subject, tmp_path, capsys, monkeypatch):
+    from trioman.cli import main
+
+    monkeypatch.setattr("trioman.toolkit.train.command.load_lpips_or_say_why", lambda command: None)
+    out = str(tmp_path / "cli")
+    assert main(["train", str(subject), "--out", out, "--iterations", "2", "--quiet"]) == 0
+    assert main(["train", str(subject), "--out", out, "--iterations", "2", "--resume", "--seed", "7", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "the training config differs from the run's (seed: 0 -> 7)" in err
+    assert main(["train", str(subject), "--out", out, "--resume", "--extend-iterations", "3", "--quiet"]) == 0
+    assert json.loads((tmp_path / "cli" / "config.json").read_text())["extensions"][0]["iterations"] == 3
+
+
+def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_path, monkeypatch):
+    # torch.save to a file reported a full disk as "RuntimeError: ... unexpected pos" (issue 18, case 2)
+    import errno
+
+    from tests.test_cli import _FullDisk
+    from trioman.runtime import image_io
+    from trioman.toolkit.train.checkpoint import checkpoint_path, save_checkpoint
+
+    monkeypatch.setattr(image_io, "open", _FullDisk, raising=False)
+    with pytest.raises(OSError) as err:
+        save_checkpoint(tmp_path, 5, {"step": 5, "model": {"w": torch.ones(3)}, "config": "{}"})
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(checkpoint_path(tmp_path, 5))
+    assert list((tmp_path / "checkpoints").iterdir()) == []
