@@ -1,13 +1,15 @@
 """Rotations in numpy: axis-angle <-> matrix, quaternions (wxyz). Batched over leading dims.
 
-Axis-angle vectors are stable for tiny angles (second-order Taylor terms) and near pi.
+The numpy twin of :mod:`trioman.toolkit.rotations` (same names, same rules; docs/design.md,
+"Conventions"). Axis-angle vectors are stable for tiny angles (second-order Taylor terms) and near pi.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-_SMALL = 1e-6
+SMALL_ANGLE = 1e-6  # radians: below it, axis-angle conversions use their Taylor expansions
+QUAT_NORM_FLOOR = 1e-12  # matrix_to_quat's candidate is normalised with its norm clamped here
 
 
 def axis_angle_to_matrix(aa: np.ndarray) -> np.ndarray:
@@ -19,7 +21,7 @@ def axis_angle_to_matrix(aa: np.ndarray) -> np.ndarray:
     a = aa.astype(np.float64)
     theta2 = np.sum(a * a, axis=-1)
     theta = np.sqrt(theta2)
-    small = theta < _SMALL
+    small = theta < SMALL_ANGLE
     safe = np.where(small, 1.0, theta)
     # sin(t)/t and (1-cos(t))/t^2 with their Taylor expansions for tiny angles.
     a_coef = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
@@ -59,7 +61,7 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     diag = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
     best = np.argmax(diag, axis=-1)
     q = np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-12)
+    q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), QUAT_NORM_FLOOR)
     return np.where(q[..., :1] < 0, -q, q)
 
 
@@ -70,9 +72,9 @@ def quat_to_axis_angle(q: np.ndarray) -> np.ndarray:
     w, v = q[..., 0], q[..., 1:]
     s = np.linalg.norm(v, axis=-1)
     angle = 2.0 * np.arctan2(s, w)
-    small = s < _SMALL
+    small = s < SMALL_ANGLE
     # angle / sin(angle/2) -> 2 / w (1 + s^2/(6 w^2)...) for tiny s.
-    scale = np.where(small, 2.0 / np.maximum(w, _SMALL), angle / np.where(small, 1.0, s))
+    scale = np.where(small, 2.0 / np.maximum(w, SMALL_ANGLE), angle / np.where(small, 1.0, s))
     return v * scale[..., None]
 
 

@@ -50,7 +50,8 @@ class Projected(NamedTuple):
 # input checks
 
 
-def _check_size(name: str, value) -> int:
+def check_size(name: str, value) -> int:
+    """An image side: a positive int (bool refused). -> int; ValueError naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ValueError(f"{name}: must be a positive int, got {value!r}")
     if value <= 0:
@@ -58,14 +59,40 @@ def _check_size(name: str, value) -> int:
     return int(value)
 
 
+def check_shape(name: str, got: tuple, shape: tuple) -> None:
+    """``got`` against ``shape`` (ints, or None for 'any'); ValueError naming ``name`` and both shapes."""
+    want = "[" + ", ".join("N" if s is None else str(s) for s in shape) + "]"
+    if len(got) != len(shape) or any(s is not None and s != d for s, d in zip(shape, got)):
+        raise ValueError(f"{name}: expected shape {want}, got {list(got)}")
+
+
+def check_values(scales: np.ndarray, opacities: np.ndarray | None, K: np.ndarray, near_plane: float,
+                 far_plane: float) -> None:
+    """The value rules both renderers share: scales [N, 3] >= 0, opacities [N] in [0, 1] (None: not
+    given), K [3, 3] with fx, fy > 0, 0 < near_plane < far_plane (far may be inf). ValueError naming
+    the argument and the count."""
+    neg = int(np.count_nonzero(scales < 0))
+    if neg:
+        raise ValueError(f"scales: {neg} of {scales.size} values are negative (activated scales are >= 0)")
+    if opacities is not None:
+        out = int(np.count_nonzero((opacities < 0) | (opacities > 1)))
+        if out:
+            raise ValueError(f"opacities: {out} of {opacities.size} values lie outside [0, 1]")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"K: focal lengths must be > 0, got fx={float(K[0, 0])}, fy={float(K[1, 1])}")
+    near, far = float(near_plane), float(far_plane)
+    if not (math.isfinite(near) and near > 0):
+        raise ValueError(f"near_plane: must be a finite number > 0, got {near_plane}")
+    if not (far > near):  # far may be inf
+        raise ValueError(f"far_plane: must be > near_plane ({near}), got {far_plane}")
+
+
 def _check_array(name: str, x, shape: tuple) -> np.ndarray:
     """shape: ints, or None for 'any'. -> the array (not copied); ValueError naming ``name``."""
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"{name}: expected a real-valued array, got dtype {a.dtype}")
-    want = "[" + ", ".join("N" if s is None else str(s) for s in shape) + "]"
-    if a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape)):
-        raise ValueError(f"{name}: expected shape {want}, got {list(a.shape)}")
+    check_shape(name, a.shape, shape)
     if a.dtype.kind == "f":
         bad = a.size - int(np.count_nonzero(np.isfinite(a)))
         if bad:
@@ -79,28 +106,15 @@ def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, hei
 
     -> ([means, quats, scales, opacities, colors, viewmat, K, background or None] as arrays, W, H).
     """
-    width = _check_size("width", width)
-    height = _check_size("height", height)
+    width = check_size("width", width)
+    height = check_size("height", height)
     means = _check_array("means", means, (None, 3))
     n = means.shape[0]
     arrays = [means, _check_array("quats", quats, (n, 4)), _check_array("scales", scales, (n, 3)),
               _check_array("opacities", opacities, (n,)), _check_array("colors", colors, (n, 3)),
               _check_array("viewmat", viewmat, (4, 4)), _check_array("K", K, (3, 3)),
               None if background is None else _check_array("background", background, (3,))]
-    scales, opacities, K = arrays[2], arrays[3], arrays[6]
-    neg = int(np.count_nonzero(scales < 0))
-    if neg:
-        raise ValueError(f"scales: {neg} of {scales.size} values are negative (activated scales are >= 0)")
-    out = int(np.count_nonzero((opacities < 0) | (opacities > 1)))
-    if out:
-        raise ValueError(f"opacities: {out} of {opacities.size} values lie outside [0, 1]")
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise ValueError(f"K: focal lengths must be > 0, got fx={float(K[0, 0])}, fy={float(K[1, 1])}")
-    near, far = float(near_plane), float(far_plane)
-    if not (math.isfinite(near) and near > 0):
-        raise ValueError(f"near_plane: must be a finite number > 0, got {near_plane}")
-    if not (far > near):  # far may be inf
-        raise ValueError(f"far_plane: must be > near_plane ({near}), got {far_plane}")
+    check_values(arrays[2], arrays[3], arrays[6], near_plane, far_plane)
     return arrays, width, height
 
 

@@ -85,7 +85,7 @@ def _pair_table(p, opacities, colors, bins, s: int) -> np.ndarray:
     abc = p.chol * np.sqrt(0.5)
     ty, tx = np.divmod(np.arange(len(bins.tile_count)), bins.tiles_x)
     cx, cy = tx * s + s / 2, ty * s + s / 2  # tile centres
-    tile = np.repeat(np.arange(len(bins.tile_count), dtype=np.int32), bins.tile_count)  # pairs are grouped by tile
+    tile = bins.pair_tile
     for j0 in range(0, n_pairs, _PAIR_SLICE):  # float64 temporaries of at most _PAIR_SLICE pairs
         j1 = min(j0 + _PAIR_SLICE, n_pairs)
         gs, ts = g[j0:j1], tile[j0:j1]

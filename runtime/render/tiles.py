@@ -23,9 +23,13 @@ ELLIPSE_MARGIN = 1e-3  # relative widening of the squared Mahalanobis bound (rou
 
 
 class Bins(NamedTuple):
+    """Per-tile lists of (tile, Gaussian) pairs; the same fields as the torch twin's
+    (:class:`trioman.toolkit.render.tiles.Bins`)."""
+
     tiles_x: int
     tiles_y: int
     pair_gauss: np.ndarray  # [P] int64 projected-Gaussian index per (tile, Gaussian) pair; by tile, front to back
+    pair_tile: np.ndarray  # [P] int32 tile id (ty * tiles_x + tx) of each pair
     tile_start: np.ndarray  # [T] int64 first pair of each tile
     tile_count: np.ndarray  # [T] int64 pairs per tile
 
@@ -95,4 +99,5 @@ def bin_gaussians(means2d: np.ndarray, radii: np.ndarray, depths: np.ndarray, wi
     tile_id = np.repeat(base, nc) + np.arange(len(g), dtype=np.int32)
     perm = np.argsort(tile_id.astype(np.uint16) if n_tiles <= 1 << 16 else tile_id, kind="stable")
     tile_count = np.bincount(tile_id, minlength=n_tiles)
-    return Bins(tx_n, ty_n, np.take(g, perm), np.cumsum(tile_count) - tile_count, tile_count)
+    pair_tile = np.repeat(np.arange(n_tiles, dtype=np.int32), tile_count)  # sorted by tile: the ids in order
+    return Bins(tx_n, ty_n, np.take(g, perm), pair_tile, np.cumsum(tile_count) - tile_count, tile_count)

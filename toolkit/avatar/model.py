@@ -21,7 +21,7 @@ from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.avatar.mesh_ops import avatar_points, knn
 from trioman.toolkit.avatar.triplane import Triplane
 from trioman.toolkit.body.skinning import apply_transforms, blend_transforms, skinning_transforms
-from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matrix_to_rot6d
+from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matrix_to_rot6d, quat_to_matrix
 
 # Joints whose rotations condition the pose-dependent MLPs: the body, not fingers, toes or eyes.
 _NOT_CONDITIONING = ("finger", "metacarpal", "toe", "eye", "root")
@@ -161,7 +161,7 @@ class GaussianAvatar(nn.Module):
         T = blend_transforms(A, self.skin_indices, self.skin_weights)[0]  # [N, 3, 4]
         if self.cfg.anisotropic:
             q_local = geo[:, 3 + s :] + torch.tensor([1.0, 0.0, 0.0, 0.0], device=geo.device)
-            R_local = _quat_to_matrix(q_local)
+            R_local = quat_to_matrix(q_local)
             quats = matrix_to_quat(T[:, :, :3] @ R_local)
         else:
             quats = torch.zeros(self.num_gaussians, 4, device=geo.device)
@@ -186,13 +186,3 @@ class GaussianAvatar(nn.Module):
     def laplacian(self, values: torch.Tensor) -> torch.Tensor:
         """values: [N, C] -> [N, C], each value minus the mean of its neighbours."""
         return values - values[self.neighbors].mean(1)
-
-
-def _quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(q.shape[:-1] + (3, 3))

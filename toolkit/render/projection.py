@@ -15,19 +15,22 @@ extreme Gaussians (scales 1e-6 .. 1e2 m, anisotropy 1e6, centres on the near pla
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import torch
 
-# The semantics' constants, defined once for both renderers (runtime/render/projection.py).
-from trioman.runtime.render.projection import (  # noqa: F401 (re-exported for the toolkit renderer)
+# The semantics' constants and input rules, defined once for both renderers (runtime/render/projection.py).
+from trioman.runtime.render.projection import (  # noqa: F401 (constants re-exported for the toolkit renderer)
     ALPHA_THRESHOLD,
     EPS2D,
     MAX_ALPHA,
     MAX_EXTENT,
     TRANSMITTANCE_THRESHOLD,
+    check_shape,
+    check_size,
+    check_values,
 )
+from trioman.toolkit.rotations import quat_to_matrix
 
 
 class Projection(NamedTuple):
@@ -56,25 +59,13 @@ class _Projected(NamedTuple):
 # input checks
 
 
-def _check_size(name: str, value) -> int:
-    import numbers
-
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name}: must be a positive int, got {value!r}")
-    if value <= 0:
-        raise ValueError(f"{name}: must be a positive int, got {value}")
-    return int(value)
-
-
 def _check_tensor(name: str, t, shape: tuple, device=None) -> torch.Tensor:
     """shape: ints, or None for 'any'. Returns the tensor; raises ValueError naming ``name``."""
     if not isinstance(t, torch.Tensor):
         raise ValueError(f"{name}: expected a torch.Tensor, got {type(t).__name__}")
     if not t.dtype.is_floating_point:
         raise ValueError(f"{name}: expected a floating-point tensor, got dtype {t.dtype}")
-    want = "[" + ", ".join("N" if s is None else str(s) for s in shape) + "]"
-    if t.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):
-        raise ValueError(f"{name}: expected shape {want}, got {list(t.shape)}")
+    check_shape(name, tuple(t.shape), shape)
     if device is not None and t.device != device:
         raise ValueError(f"{name}: on device {t.device}, expected {device} like means")
     bad = int((~torch.isfinite(t.detach())).sum())
@@ -83,11 +74,18 @@ def _check_tensor(name: str, t, shape: tuple, device=None) -> torch.Tensor:
     return t
 
 
+def _numpy(t: torch.Tensor | None):
+    return None if t is None else t.detach().cpu().numpy()
+
+
 def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height, background=None,
                  near_plane: float = 0.01, far_plane: float = 1e10):
-    """Validate the rasterizer's inputs (ValueError naming the argument and the count). -> (N, W, H)."""
-    width = _check_size("width", width)
-    height = _check_size("height", height)
+    """Validate the rasterizer's inputs (ValueError naming the argument and the count). -> (N, W, H).
+
+    The torch checks (type, dtype, device) come first, then the rules shared with the numpy renderer
+    (:func:`trioman.runtime.render.projection.check_values`)."""
+    width = check_size("width", width)
+    height = check_size("height", height)
     if not isinstance(means, torch.Tensor):
         raise ValueError(f"means: expected a torch.Tensor, got {type(means).__name__}")
     n = means.shape[0] if means.dim() >= 1 else -1
@@ -103,38 +101,12 @@ def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, hei
     _check_tensor("K", K, (3, 3), dev)
     if background is not None:
         _check_tensor("background", background, (3,), dev)
-    neg = int((scales.detach() < 0).sum())
-    if neg:
-        raise ValueError(f"scales: {neg} of {scales.numel()} values are negative (activated scales are >= 0)")
-    if opacities is not None:
-        out = int(((opacities.detach() < 0) | (opacities.detach() > 1)).sum())
-        if out:
-            raise ValueError(f"opacities: {out} of {opacities.numel()} values lie outside [0, 1]")
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise ValueError(f"K: focal lengths must be > 0, got fx={float(K[0, 0])}, fy={float(K[1, 1])}")
-    near, far = float(near_plane), float(far_plane)
-    if not (math.isfinite(near) and near > 0):
-        raise ValueError(f"near_plane: must be a finite number > 0, got {near_plane}")
-    if not (far > near):  # far may be inf
-        raise ValueError(f"far_plane: must be > near_plane ({near}), got {far_plane}")
+    check_values(_numpy(scales), _numpy(opacities), _numpy(K), near_plane, far_plane)
     return n, width, height
 
 
 # --------------------------------------------------------------------------------------------
 # projection
-
-
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """wxyz -> [..., 3, 3]; normalised inside; the zero quaternion gives the identity."""
-    norm = torch.linalg.vector_norm(quats, dim=-1, keepdim=True)
-    q = quats / torch.where(norm > 0, norm, torch.ones_like(norm))  # zero stays zero -> R = I below
-    w, x, y, z = q.unbind(-1)
-    R = torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1)
-    return R.reshape(quats.shape[:-1] + (3, 3))
 
 
 def _project(means, quats, scales, opacities, viewmat, K, width: int, height: int,
@@ -152,7 +124,7 @@ def _project(means, quats, scales, opacities, viewmat, K, width: int, height: in
         keep &= opacities.detach().float() >= torch.tensor(ALPHA_THRESHOLD, dtype=torch.float32)
     ids = torch.nonzero(keep).squeeze(1)
     mc = mc_all[ids]
-    R = quat_to_rotmat(quats[ids].to(f64))
+    R = quat_to_matrix(quats[ids].to(f64))
     M = Rv @ (R * scales[ids].to(f64)[:, None, :])  # [M, 3, 3] camera-frame factor: Sigma_c = M M^T
     tx, ty, tz = mc.unbind(-1)
     fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]

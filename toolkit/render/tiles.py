@@ -17,6 +17,9 @@ TILE = 16
 
 
 class Bins(NamedTuple):
+    """Per-tile lists of (tile, Gaussian) pairs; the same fields as the numpy twin's
+    (:class:`trioman.runtime.render.tiles.Bins`)."""
+
     tiles_x: int
     tiles_y: int
     pair_gauss: torch.Tensor  # [P] int64 visible-Gaussian index per (tile, Gaussian) pair; by tile, front to back
