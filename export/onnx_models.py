@@ -59,6 +59,7 @@ from trioman.runtime import models as rt
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.common import _move_into_place
 from trioman.runtime.image_io import fsync_dir, temp_sibling
+from trioman.runtime.metrics import psnr
 
 OPSET = 17
 EXPORTER = "torch.onnx.export, TorchScript (legacy) exporter, dynamo=False"
@@ -299,12 +300,6 @@ def triplet_size(calibration: Sequence[str | os.PathLike]) -> tuple[int, int]:
 
 def _nchw(x: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Per-image PSNR (dB, peak 1) of [B, ...] arrays."""
-    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2, axis=tuple(range(1, a.ndim)))
-    return 10.0 * np.log10(1.0 / np.maximum(mse, 1e-12))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trioman.runtime.metrics import psnr
 from trioman.runtime.render._reference import rasterize_reference
 from trioman.toolkit.bench_render import _args, _best, avatar_scene
 
@@ -35,8 +36,8 @@ def _ms(fn, repeats: int) -> float:
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return float("inf") if mse == 0 else -10.0 * np.log10(mse)
+    """PSNR of one image pair (any layout)."""
+    return float(psnr(np.asarray(a)[None], np.asarray(b)[None])[0])
 
 
 def bench_renderer_rows(scene: dict, size: int, repeats: int, oracle_size: int = 128) -> list[dict]:

@@ -38,11 +38,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from trioman.runtime.metrics import MSE_FLOOR, PSNR_MAX_DB
+
 if TYPE_CHECKING:  # pragma: no cover
     from trioman.toolkit.lpips import LPIPS
 
-PSNR_MAX_DB = 100.0  # PSNR of (near-)identical images: mse is floored at 10^-10 instead of giving +inf
-_MSE_FLOOR = 10.0 ** (-PSNR_MAX_DB / 10.0)
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 SSIM_BORDERS = ("reflect", "valid")
@@ -129,7 +129,7 @@ def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None)
         if empty:
             raise ValueError(f"mask: empty (all zero) for batch item(s) {empty}; PSNR over no pixels is undefined")
         mse = (se * weight).flatten(1).sum(dim=1) / total
-    return 10.0 * torch.log10(1.0 / mse.clamp_min(_MSE_FLOOR))
+    return 10.0 * torch.log10(1.0 / mse.clamp_min(MSE_FLOOR))
 
 
 # --------------------------------------------------------------------------------------------------

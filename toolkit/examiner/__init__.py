@@ -1,7 +1,7 @@
 """The Examiner (paper 3.2.6): a dual-branch attention similarity network on a timm-style ViT,
 its training pairs, loss, training loop, inference choice and AUROC."""
 
-from trioman.toolkit.examiner.inference import Choice, choose
+from trioman.toolkit.examiner.inference import BatchChoice, choose
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.metrics import auroc, pair_auroc
 from trioman.toolkit.examiner.model import (
@@ -14,18 +14,18 @@ from trioman.toolkit.examiner.model import (
     export_inputs,
 )
 from trioman.toolkit.examiner.pairs import ExaminerBatch, ExaminerPairs, sample_pairs
-from trioman.toolkit.examiner.train import ExaminerTrainConfig, TrainResult, load_examiner, train_examiner
+from trioman.toolkit.examiner.train import ExaminerTrainConfig, ExaminerTrainResult, load_examiner, train_examiner
 
 __all__ = [
     "EXAMINER_CONFIGS",
-    "Choice",
+    "BatchChoice",
     "Examiner",
     "ExaminerBatch",
     "ExaminerConfig",
     "ExaminerPairs",
     "ExaminerTrainConfig",
+    "ExaminerTrainResult",
     "PatchLogits",
-    "TrainResult",
     "auroc",
     "choose",
     "create_examiner",

@@ -9,7 +9,7 @@ import torch
 from trioman.toolkit.examiner.model import Examiner
 
 
-class Choice(NamedTuple):
+class BatchChoice(NamedTuple):
     """Per sample: index of the higher-scoring candidate [B] (long), its score [B], keep flag [B] (bool)."""
 
     index: torch.Tensor
@@ -23,7 +23,7 @@ def choose(
     candidates: torch.Tensor | Sequence[torch.Tensor],
     real: torch.Tensor,
     threshold: float | None = None,
-) -> Choice:
+) -> BatchChoice:
     """Pick, per sample, the candidate most similar to ``real``.
 
     candidates: [K, B, 3, S, S] or a sequence of K tensors [B, 3, S, S]; real: [B, 3, S, S].
@@ -41,4 +41,4 @@ def choose(
     scores = model(candidates.reshape(k * b, *real.shape[1:]), real.repeat(k, 1, 1, 1)).reshape(k, b)
     score, index = scores.max(dim=0)
     keep = torch.ones_like(score, dtype=torch.bool) if threshold is None else score >= threshold
-    return Choice(index, score, keep)
+    return BatchChoice(index, score, keep)

@@ -47,7 +47,7 @@ class ExaminerTrainConfig:
         return dataclasses.asdict(self)
 
 
-class TrainResult(NamedTuple):
+class ExaminerTrainResult(NamedTuple):
     losses: list[float]  # one per step run in this call
     step: int  # the step reached (resumed runs count from their checkpoint)
     checkpoint: Path | None  # the last checkpoint written, if a run folder was given
@@ -74,7 +74,7 @@ def train_examiner(
     run: str | os.PathLike | None = None,
     validate: Callable[[Examiner], float] | None = None,
     progress: bool = False,
-) -> TrainResult:
+) -> ExaminerTrainResult:
     """Train ``model`` in place for ``config.steps`` steps on pairs drawn by ``sample_pairs``;
     ``progress`` shows a bar with the loss and the last validation (on a terminal only).
 
@@ -141,13 +141,13 @@ def train_examiner(
     bar.close()
     model.eval()
     if validate is None:
-        return TrainResult(losses, step, saved)
+        return ExaminerTrainResult(losses, step, saved)
     selected = None
     if best is not None:
         model.load_state_dict(best[1])
         if run is not None:
             selected = _save_selected(Path(run), best[0], best[1], model, config, history[best[0]])
-    return TrainResult(losses, step, saved, best[0] if best else None, history, selected)
+    return ExaminerTrainResult(losses, step, saved, best[0] if best else None, history, selected)
 
 
 def _validate(model: Examiner, validate: Callable[[Examiner], float]) -> float:

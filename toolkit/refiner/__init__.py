@@ -6,7 +6,7 @@ from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inp
 from trioman.toolkit.refiner.config import CONDITIONS, RefinerConfig
 from trioman.toolkit.refiner.loss import RefinerLossWeights, refiner_loss
 from trioman.toolkit.refiner.model import INPUT_NAMES, OUTPUT_NAME, Refiner, export_inputs
-from trioman.toolkit.refiner.train import RefinerTrainConfig, TrainResult, load_refiner, train_refiner, train_step
+from trioman.toolkit.refiner.train import RefinerTrainConfig, RefinerTrainResult, load_refiner, train_refiner, train_step
 
 __all__ = [
     "CONDITIONS",
@@ -18,7 +18,7 @@ __all__ = [
     "RefinerConfig",
     "RefinerLossWeights",
     "RefinerTrainConfig",
-    "TrainResult",
+    "RefinerTrainResult",
     "check_batch",
     "create_refiner",
     "export_inputs",

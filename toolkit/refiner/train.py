@@ -49,7 +49,7 @@ class RefinerTrainConfig:
         return dataclasses.asdict(self)
 
 
-class TrainResult(NamedTuple):
+class RefinerTrainResult(NamedTuple):
     losses: list[float]  # total loss of each step run in this call
     step: int  # the step reached (a resumed run counts from its checkpoint)
     checkpoint: Path | None  # the last checkpoint written or resumed from, if a run folder was given
@@ -83,7 +83,7 @@ def train_refiner(
     run: str | os.PathLike | None = None,
     lpips: nn.Module | None = None,
     progress: bool = False,
-) -> TrainResult:
+) -> RefinerTrainResult:
     """Train ``model`` in place for ``config.steps`` steps, step s on ``batches(s)``; ``progress``
     shows a bar with the loss (on a terminal only).
 
@@ -121,7 +121,7 @@ def train_refiner(
             saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
     bar.close()
     model.eval()
-    return TrainResult(losses, step, saved)
+    return RefinerTrainResult(losses, step, saved)
 
 
 def load_refiner(path: str | os.PathLike, exportable: bool = False) -> nn.Module:
