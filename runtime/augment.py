@@ -30,11 +30,12 @@ from __future__ import annotations
 import json
 import numbers
 import os
+import re
 import shutil
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import cv2
 import numpy as np
@@ -47,7 +48,9 @@ from trioman.runtime.formats.subject import (
     BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, _check_frames, _check_meta,
 )
 from trioman.runtime.generator import GROUPS, GeneratorConfig, joint_groups, sample
-from trioman.runtime.image_io import atomic_path, atomic_write_bytes, atomic_write_text, write_png
+from trioman.runtime.image_io import (
+    atomic_path, atomic_write_bytes, atomic_write_text, is_temp_name, remove_temp_files, write_png,
+)
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.render import rasterize
 
@@ -111,6 +114,36 @@ def _check_out(out: Path, resume: bool, overwrite: bool) -> bool:
         raise FileExistsError(f"--out: {out} is not empty and holds no {AUGMENT_JSON}: not a `trioman augment` "
                               f"output, refusing to {action} it")
     return True
+
+
+def _written_files(out: Path, source_names: Iterable[str]) -> list[Path]:
+    """The files and folders in ``out`` that ``trioman augment`` wrote: the fixed names, the records, the frames
+    they list, the frames of an interrupted source frame (``<source name>_c<k>.png``, no record yet) and
+    temporary files. Anything else is a FileExistsError naming it: --overwrite removes only its own output."""
+    fixed = {AUGMENT_JSON, SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, HISTOGRAM_PNG, IMAGES_DIR, MASKS_DIR, RECORDS_DIR}
+    records, frames = set(), set()
+    for path in (out / RECORDS_DIR).glob("*.json"):
+        try:
+            rec = json.loads(path.read_text(encoding="utf-8"))
+            names = {f"{f['name']}.png" for f in rec["frames"]}
+        except (ValueError, KeyError, TypeError):
+            continue  # not a record of ours: reported below
+        records.add(path.name)
+        frames |= names
+    orphan = re.compile("(?:" + "|".join(re.escape(n) for n in source_names) + r")_c\d+\.png")
+    owned = []
+    for root, dirs, files in os.walk(out):
+        parts = Path(root).relative_to(out).parts
+        for name in sorted(dirs) + sorted(files):
+            path = Path(root) / name
+            if (is_temp_name(name) or (not parts and name in fixed) or (parts == (RECORDS_DIR,) and name in records)
+                    or (parts in ((IMAGES_DIR,), (MASKS_DIR,)) and (name in frames or orphan.fullmatch(name)))):
+                owned.append(path)
+            else:
+                raise FileExistsError(f"--overwrite: {path} was not written by trioman augment; refusing to replace "
+                                      f"{out} (move it away, or choose another --out)")
+        dirs[:] = [d for d in dirs if not is_temp_name(d)]
+    return owned
 
 
 def _check_joints(avatar: Any, subject: Any, avatar_path: Path) -> None:
@@ -257,6 +290,7 @@ def augment(
     had_output = _check_out(out, resume, overwrite)
 
     subj = load_subject(subject_path)
+    earlier = _written_files(out, subj.frame_names.tolist()) if had_output and overwrite else []  # refused first
     selection = subj.indices("train" if frames == "train" else None)
     if len(selection) == 0:
         raise ValueError(f"--frames: subject {subject_path} has no {frames!r} frames")
@@ -278,8 +312,13 @@ def augment(
         _check_resume(out, settings)
 
     # ---- work starts here
-    if had_output and overwrite:
-        shutil.rmtree(out)
+    for path in earlier:  # --overwrite: only what augment wrote (its folders stay)
+        if path.is_file():
+            path.unlink()
+        elif is_temp_name(path.name):
+            shutil.rmtree(path)
+    if had_output and resume:
+        remove_temp_files(out)  # an interrupted write's leftovers
     for d in (out, out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR):
         d.mkdir(parents=True, exist_ok=True)
     for name in (SUBJECT_JSON,):  # the folder is not a loadable subject while the run is going

@@ -252,6 +252,28 @@ def test_refuses_a_non_empty_out_and_a_resume_with_other_settings(inputs, tmp_pa
     assert r["settings"]["seed"] == 9 and load_subject(out).num_frames == 2 and not (out / HISTOGRAM_PNG).exists()
 
 
+def test_overwrite_removes_only_what_augment_wrote_and_resume_removes_temporary_files(inputs, tmp_path):
+    # issue 18, cases 4 and 11
+    out = tmp_path / "o"
+    run(inputs, out, limit=1)
+    temps = [out / "masks" / ".000000_c0.png.0123abcd.tmp.png", out / ".frames.npz.deadbeef.tmp.npz"]
+    for p in temps:  # what a kill -9 leaves behind
+        p.write_bytes(b"partial")
+    run(inputs, out, limit=2, resume=True)
+    assert not any(p.exists() for p in temps)
+    for foreign in (out / "notes.txt", out / "images" / "mine.png", out / "records" / "notes.txt"):
+        foreign.write_text("not augment's")
+        before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+        with pytest.raises(FileExistsError, match=rf"--overwrite: {foreign} was not written by trioman augment"):
+            run(inputs, out, limit=1, overwrite=True)
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before  # nothing removed
+        foreign.unlink()
+    (out / "images" / "000003_c1.png").write_bytes(b"an interrupted frame's image, no record yet")
+    temps[0].write_bytes(b"partial")
+    run(inputs, out, limit=1, overwrite=True)
+    assert len(records(out)) == 1 and not (out / "images" / "000003_c1.png").exists() and not temps[0].exists()
+
+
 @pytest.mark.parametrize("args, message", [
     (["--per-frame", "0"], "--per-frame: must be an integer >= 1, got 0"),
     (["--threshold", "1.5"], "--threshold: must be a number in [0, 1], got 1.5"),

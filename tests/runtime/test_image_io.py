@@ -233,3 +233,23 @@ def test_video_writer_not_opened(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"v\.mp4: OpenCV could not open a video writer \(fourcc 'mp4v', size 16x16"):
         write_video(tmp_path / "v.mp4", [np.zeros((16, 16, 3))], fps=10)
     assert os.listdir(tmp_path) == []
+
+
+def test_temporary_names_have_one_pattern_and_only_they_are_removed(tmp_path):
+    # issue 18, case 4: what a kill -9 leaves behind carries one recognisable pattern
+    made = [image_io.temp_sibling(tmp_path / n, s) for n, s in (("a.png", ".png"), ("frames.npz", ".npz"), ("run", ""),
+                                                                ("subject", ".old"))]
+    assert all(image_io.is_temp_name(p.name) for p in made)
+    assert not any(image_io.is_temp_name(n) for n in ("a.png", ".a.png", ".a.png.tmp.png", ".a.png.0123abcz.tmp.png",
+                                                      "notes.tmp", ".hidden"))
+    (tmp_path / "masks").mkdir()
+    stray = [image_io.temp_sibling(tmp_path / "masks" / "000001.png", ".png"), image_io.temp_sibling(tmp_path / "subject")]
+    stray[0].write_bytes(b"half")
+    stray[1].mkdir()
+    (stray[1] / "frames.npz").write_bytes(b"half")
+    keep = [tmp_path / "masks" / "000001.png", tmp_path / ".hidden", tmp_path / "notes.tmp"]
+    for p in keep:
+        p.write_bytes(b"mine")
+    assert image_io.remove_temp_files(tmp_path) == sorted(stray)
+    assert all(p.exists() for p in keep) and not any(p.exists() for p in stray)
+
