@@ -11,6 +11,7 @@ Module contract (trioman/cli.py): standard-library imports only at module level.
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,10 +45,27 @@ def parse_background(text: str):
     return bg
 
 
+EMPTY_ALPHA = 1.0 / 255  # a frame whose every pixel has less coverage shows nothing of the avatar
+
+
 def check_size(size: int) -> int:
     if not 16 <= size <= 4096:
         raise ValueError(f"--size: must lie in [16, 4096] pixels, got {size}")
     return size
+
+
+def check_video_size(size: int) -> int:
+    """An MP4's side: even (the codec would drop an odd last row and column), else refused."""
+    if check_size(size) % 2:
+        raise ValueError(f"--size: {size} is odd, and an MP4 needs even sides (it would be {size - 1}x{size - 1}); "
+                         f"use {size - 1} or {size + 1}")
+    return size
+
+
+def check_angles(**degrees: float) -> None:
+    for name, value in degrees.items():
+        if not math.isfinite(value):
+            raise ValueError(f"--{name}: must be a finite number of degrees, got {value}")
 
 
 def clip_points(avatar, motion, samples: int = 12):
@@ -62,7 +80,10 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
             size: int = 512, background=(1.0, 1.0, 1.0), fps: float | None = None, frames_dir=None,
             pose_dependent: bool = True, progress: bool = True) -> dict:
     """Render ``motion`` (a Motion in the avatar's joint order) with ``avatar`` (runtime Avatar) to an MP4
-    at ``out``; angles in degrees. -> timings: frames, seconds, ms per frame for posing and rendering."""
+    at ``out``; angles in degrees. The camera frames the bulk of the clip (``frame_points``); a clip whose
+    every frame shows nothing of the avatar is a ValueError and writes nothing, and a failure leaves no video
+    and none of this call's ``frames_dir`` PNGs. -> timings: frames, seconds, ms per frame for posing and
+    rendering, and the frames that show nothing (``empty``)."""
     import time
     from pathlib import Path
 
@@ -75,7 +96,8 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
 
     if camera not in ("fixed", "orbit"):
         raise ValueError(f"camera: expected 'fixed' or 'orbit', got {camera!r}")
-    size = check_size(size)
+    size = check_video_size(size)
+    check_angles(azimuth=azimuth, elevation=elevation)
     bg = np.asarray(background, dtype=np.float32)
     out = Path(out)
     if not out.parent.is_dir():
@@ -84,27 +106,44 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
         frames_dir = Path(frames_dir)
         frames_dir.mkdir(parents=True, exist_ok=True)
     az0, el = np.deg2rad(azimuth), np.deg2rad(elevation)
-    K, viewmat, center = frame_points(clip_points(avatar, motion), (size, size), az0, el)
+    try:
+        K, viewmat, center = frame_points(clip_points(avatar, motion), (size, size), az0, el)
+    except ValueError as err:
+        raise ValueError(f"--motion {motion.name}: the avatar cannot be framed: {err}") from None
     distance = float(np.linalg.norm(np.linalg.inv(viewmat)[:3, 3] - center))
     t_pose = t_render = 0.0
+    empty: list[int] = []
+    written: list[Path] = []
     start = time.perf_counter()
-    with VideoWriter(out, fps or motion.fps, (size, size)) as video:
-        for i in tqdm(range(motion.num_frames), desc="animate", unit="frame", disable=None if progress else True):
-            if camera == "orbit":
-                viewmat = orbit_viewmat(center, az0 + 2 * np.pi * i / motion.num_frames, el, distance)
-            t0 = time.perf_counter()
-            g = avatar.gaussians(motion.pose[i], motion.trans[i], pose_dependent=pose_dependent)
-            t1 = time.perf_counter()
-            img = rasterize(*g, viewmat, K, size, size, background=bg).rgb
-            t_render += time.perf_counter() - t1
-            t_pose += t1 - t0
-            video.write(img)
-            if frames_dir is not None:
-                write_png(frames_dir / f"{i:05d}.png", img)
+    try:
+        with VideoWriter(out, fps or motion.fps, (size, size)) as video:
+            for i in tqdm(range(motion.num_frames), desc="animate", unit="frame", disable=None if progress else True):
+                if camera == "orbit":
+                    viewmat = orbit_viewmat(center, az0 + 2 * np.pi * i / motion.num_frames, el, distance)
+                t0 = time.perf_counter()
+                g = avatar.gaussians(motion.pose[i], motion.trans[i], pose_dependent=pose_dependent)
+                t1 = time.perf_counter()
+                r = rasterize(*g, viewmat, K, size, size, background=bg)
+                t_render += time.perf_counter() - t1
+                t_pose += t1 - t0
+                if not r.alpha.max() >= EMPTY_ALPHA:
+                    empty.append(i)
+                video.write(r.rgb)
+                if frames_dir is not None:
+                    written.append(frames_dir / f"{i:05d}.png")
+                    write_png(written[-1], r.rgb)
+            if len(empty) == motion.num_frames:
+                raise ValueError(f"--motion {motion.name}: all {len(empty)} frames show nothing of the avatar (out of "
+                                 f"view of the camera); no video written")
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
     n = motion.num_frames
     total = time.perf_counter() - start
     return {"frames": n, "seconds": total, "pose_ms": 1000 * t_pose / n, "render_ms": 1000 * t_render / n,
-            "ms_per_frame": 1000 * total / n, "size": size, "gaussians": avatar.num_gaussians, "video": str(out)}
+            "ms_per_frame": 1000 * total / n, "size": size, "gaussians": avatar.num_gaussians, "video": str(out),
+            "empty": empty}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -116,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--frames: must be >= 1, got {args.frames}")
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps: must be > 0, got {args.fps}")
-    check_size(args.size)
+    check_video_size(args.size)
+    check_angles(azimuth=args.azimuth, elevation=args.elevation)
     avatar = load_avatar(args.avatar)
     motion = motion_from_spec(args.motion, avatar.skeleton, args.frames)
     r = animate(avatar, motion, args.out, args.camera, args.azimuth, args.elevation, args.size, bg, args.fps,
@@ -124,5 +164,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"animate: {r['frames']} frames of {motion.name!r} ({r['gaussians']} Gaussians, {r['size']}x{r['size']}) "
           f"in {r['seconds']:.1f} s: {r['ms_per_frame']:.1f} ms/frame (pose {r['pose_ms']:.1f}, render "
           f"{r['render_ms']:.1f}), {1000 / r['ms_per_frame']:.1f} fps")
+    if r["empty"]:
+        print(f"animate: warning: {len(r['empty'])} of {r['frames']} frames show nothing of the avatar (first: frame "
+              f"{r['empty'][0]})")
     print(f"animate: video {r['video']}" + (f"; frames {args.frames_dir}" if args.frames_dir else ""))
     return 0

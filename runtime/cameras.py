@@ -20,6 +20,8 @@ def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
     """World->camera [4, 4] for a camera at ``eye`` looking at ``target`` with world ``up`` on screen up."""
     eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+    if not (np.all(np.isfinite(eye)) and np.all(np.isfinite(target))):
+        raise ValueError(f"eye: camera position {eye.tolist()} or target {target.tolist()} is not finite")
     forward = target - eye
     n = np.linalg.norm(forward)
     if not np.isfinite(n) or n < 1e-12:
@@ -66,11 +68,17 @@ def project(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> tuple[np.
     return uv, z
 
 
+_MAX_FAR = 1e4  # frame_points: the farthest a subject may lie from the origin, in units of its radius
+
+
 def frame_points(points: np.ndarray, size: tuple[int, int], azimuth: float, elevation: float,
                  fill: float = 0.85, margin: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A camera that keeps ``points`` [N, 3] in view from any orbit angle (radians): it looks at the
-    centre of their bounding box from a distance of 3 bounding-sphere radii (``margin`` m added), with
-    the focal length that makes the sphere span ``fill`` of the shorter image side.
+    """A camera that keeps the bulk of ``points`` [N, 3] in view from any orbit angle (radians): it looks
+    at the centre of their bounding box from a distance of 3 bounding-sphere radii (``margin`` m added),
+    with the focal length that makes the sphere span ``fill`` of the shorter image side. The bulk is every
+    point within twice the 99th-percentile or five times the median distance from the median point, whichever
+    is less (``margin`` added), so a few far outliers (a stray Gaussian at 100 m) do not shrink the rest to a dot. Points too far from the origin
+    for their extent to survive float32 rendering are a ValueError.
     size: (width, height). -> (K [3, 3], viewmat [4, 4], center [3])."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0 or not np.all(np.isfinite(points)):
@@ -78,8 +86,14 @@ def frame_points(points: np.ndarray, size: tuple[int, int], azimuth: float, elev
     if not 0 < fill <= 1:
         raise ValueError(f"fill: must lie in (0, 1], got {fill}")
     width, height = size
-    center = 0.5 * (points.min(0) + points.max(0))
-    radius = float(np.linalg.norm(points - center, axis=1).max()) + margin
+    d = np.linalg.norm(points - np.median(points, axis=0), axis=1)
+    bulk = points[d <= min(2.0 * np.percentile(d, 99), 5.0 * np.median(d)) + margin]
+    center = 0.5 * (bulk.min(0) + bulk.max(0))
+    radius = float(np.linalg.norm(bulk - center, axis=1).max()) + margin
+    far = float(np.abs(center).max())
+    if far > _MAX_FAR * radius:
+        raise ValueError(f"points: {far:.3g} m from the origin, too far for their {radius:.3g} m extent to render "
+                         f"(float32 keeps about 7 digits)")
     distance = 3.0 * radius
     half = np.tan(np.arcsin(radius / distance))  # tangent of the sphere's angular radius
     f = 0.5 * fill * min(width, height) / half

@@ -261,7 +261,9 @@ class VideoWriter:
 
     The video goes to a temporary ``.mp4`` next to ``path`` and is renamed onto ``path`` by
     ``close()``; leaving the ``with`` block with an exception (or calling ``abort()``) removes it.
-    The frame size comes from ``size=(width, height)`` or the first frame; every frame must match.
+    The frame size comes from ``size=(width, height)`` or the first frame; every frame must match. MP4
+    codecs need even sides (mp4v silently drops an odd last row or column): an odd side is padded by
+    repeating its last row or column, and ``video_size`` is the size written.
 
         with VideoWriter("out.mp4", fps=30) as video:
             for frame in frames:
@@ -286,8 +288,13 @@ class VideoWriter:
         self._tmp = self._ctx.__enter__()
         self._done = False
 
+    @property
+    def video_size(self) -> tuple[int, int] | None:
+        """(width, height) of the video file: ``size`` rounded up to even sides."""
+        return None if self.size is None else (self.size[0] + self.size[0] % 2, self.size[1] + self.size[1] % 2)
+
     def _open(self) -> None:
-        writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*self.fourcc), self.fps, self.size)
+        writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*self.fourcc), self.fps, self.video_size)
         if not writer.isOpened():
             self.abort()
             raise ValueError(
@@ -311,6 +318,8 @@ class VideoWriter:
             self._open()
         u8 = to_uint8(frame, name)
         bgr = cv2.cvtColor(u8, cv2.COLOR_GRAY2BGR) if u8.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(u8), cv2.COLOR_RGB2BGR)
+        if self.video_size != self.size:
+            bgr = np.pad(bgr, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
         self._writer.write(bgr)
         self.count += 1
 

@@ -11,6 +11,7 @@ Module contract (trioman/cli.py): standard-library imports only at module level.
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from trioman.runtime.animate import check_size, parse_background
+    from trioman.runtime.animate import EMPTY_ALPHA, check_size, parse_background
     from trioman.runtime.cameras import frame_points
     from trioman.runtime.formats import load_avatar
     from trioman.runtime.image_io import write_png
@@ -97,9 +98,16 @@ def run(args: argparse.Namespace) -> int:
                 az, el = (float(v) for v in args.camera.split(","))
             except ValueError:
                 raise ValueError(f"--camera: expected front, subject or AZ,EL in degrees, got {args.camera!r}") from None
+            if not (math.isfinite(az) and math.isfinite(el)):
+                raise ValueError(f"--camera: AZ,EL must be finite degrees, got {args.camera!r}")
         width = height = check_size(args.size or 512)
-        K, viewmat, _ = frame_points(g.means, (width, height), np.deg2rad(az), np.deg2rad(el))
-    img = rasterize(*g, viewmat, K, width, height, background=bg).rgb
-    write_png(out, img)
+        try:
+            K, viewmat, _ = frame_points(g.means, (width, height), np.deg2rad(az), np.deg2rad(el))
+        except ValueError as err:
+            raise ValueError(f"--pose {args.pose}: the avatar cannot be framed: {err}") from None
+    r = rasterize(*g, viewmat, K, width, height, background=bg)
+    if not r.alpha.max() >= EMPTY_ALPHA:
+        raise ValueError(f"--camera {args.camera}: the image shows nothing of the avatar (out of view); not written")
+    write_png(out, r.rgb)
     print(f"render: {out} ({width}x{height}, {avatar.num_gaussians} Gaussians, {1000 * (time.perf_counter() - t0):.0f} ms)")
     return 0

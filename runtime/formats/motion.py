@@ -26,6 +26,8 @@ from trioman.runtime.skeleton import Skeleton
 MOTION_FORMAT = "trioman-motion"
 MOTION_VERSION = 1
 _FIELDS = ("format", "version", "name", "fps", "joint_names", "poses", "trans")
+MAX_ANGLE = 1e3  # radians: a larger axis-angle is no joint rotation (float32 sin/cos lose it)
+MAX_TRANS = 1e4  # metres from the origin
 
 
 def _scalar(arrays: dict, key: str, kind: str, where: Path):
@@ -67,6 +69,13 @@ def load_motion(path: str | os.PathLike) -> Motion:
         bad = int((~np.isfinite(a)).sum())
         if bad:
             raise _fail(path, key, f"{bad} value(s) are NaN or Inf")
+    size = {"poses": np.linalg.norm(poses.astype(np.float64), axis=-1), "trans": np.abs(trans.astype(np.float64)).max(-1)}
+    for key, limit, what in (("poses", MAX_ANGLE, "a rotation angle of"), ("trans", MAX_TRANS, "a translation of")):
+        if size[key].max() > limit:
+            at = np.unravel_index(np.argmax(size[key]), size[key].shape)
+            where = f"frame {at[0]}" + (f", joint {str(names[at[1]])!r}" if key == "poses" else "")
+            raise _fail(path, key, f"{where}: {what} {float(size[key][at]):.3g} ({'rad' if key == 'poses' else 'm'}), "
+                                   f"beyond {limit:g}")
     return Motion(name, poses.astype(np.float32), trans.astype(np.float32), tuple(names.tolist()), fps)
 
 

@@ -28,3 +28,22 @@ def test_frame_points_errors():
         frame_points(np.full((3, 3), np.nan), (8, 8), 0, 0)
     with pytest.raises(ValueError, match="fill: must lie in"):
         frame_points(np.zeros((3, 3)), (8, 8), 0, 0, fill=2)
+
+
+def test_frame_points_frames_the_bulk_despite_one_far_outlier():
+    # issue 18, case 7: one Gaussian at 100 m used to shrink the body to a dot
+    pts = np.random.default_rng(1).normal([0.3, -1.0, 0.9], [0.3, 0.3, 0.5], (5000, 3))
+    K, viewmat, _ = frame_points(pts, (320, 240), 0.3, 0.1)
+    K_out, viewmat_out, _ = frame_points(np.concatenate([pts, [[100.0, 0.0, 0.0]]]), (320, 240), 0.3, 0.1)
+    np.testing.assert_allclose(K_out, K, rtol=0.05)
+    uv, z = project(pts, viewmat_out, K_out)
+    assert np.all(z > 0) and np.mean((uv >= 0).all(1) & (uv <= [320, 240]).all(1)) > 0.999
+
+
+def test_frame_points_refuses_points_too_far_to_render_and_non_finite_cameras():
+    with pytest.raises(ValueError, match=r"points: 1e\+30 m from the origin, too far for their 0\.05 m extent"):
+        frame_points(np.random.default_rng(0).normal(size=(50, 3)) + 1e30, (8, 8), 0, 0)
+    from trioman.runtime.cameras import look_at
+
+    with pytest.raises(ValueError, match=r"eye: camera position \[nan, 0\.0, 0\.0\] or target .* is not finite"):
+        look_at(np.array([np.nan, 0.0, 0.0]), np.zeros(3))

@@ -253,3 +253,15 @@ def test_temporary_names_have_one_pattern_and_only_they_are_removed(tmp_path):
     assert image_io.remove_temp_files(tmp_path) == sorted(stray)
     assert all(p.exists() for p in keep) and not any(p.exists() for p in stray)
 
+
+@pytest.mark.parametrize("w, h", [(17, 17), (257, 18), (18, 20)])
+def test_a_video_keeps_odd_sides_by_padding_them(tmp_path, w, h):
+    # issue 18, case 9: mp4v silently dropped an odd last row or column (257 px became 256)
+    frame = np.random.default_rng(0).random((h, w, 3), dtype=np.float32)
+    with image_io.VideoWriter(tmp_path / "v.mp4", fps=10) as video:
+        video.write(frame)
+    assert video.video_size == (w + w % 2, h + h % 2)
+    cap = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    ok, got = cap.read()
+    cap.release()
+    assert ok and got.shape == (h + h % 2, w + w % 2, 3)

@@ -51,6 +51,10 @@ def _rewrite(path, **changes):
     (dict(poses=np.zeros((8, 3, 3), np.float32)), r"poses: expected float \[T >= 1, 18, 3\]"),
     (dict(trans=np.zeros((7, 3), np.float32)), r"trans: expected float \[8, 3\]"),
     (dict(poses=np.full((8, 18, 3), np.nan, np.float32)), "poses: 432 value"),
+    # issue 18, case 8: a 1e30 rad rotation reported NaN means without naming the motion file
+    (dict(poses=np.pad(np.full((1, 1, 3), 1e30, np.float32), ((3, 4), (2, 15), (0, 0)))),
+     r"poses: frame 3, joint '[\w.]+': a rotation angle of 1\.73e\+30 \(rad\), beyond 1000"),
+    (dict(trans=np.full((8, 3), 1e30, np.float32)), r"trans: frame 0: a translation of 1e\+30 \(m\), beyond 10000"),
 ])
 def test_every_validation_error_names_file_and_field(motion_file, changes, match):
     _rewrite(motion_file, **changes)
