@@ -148,7 +148,7 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
                            run=run, lpips=lpips, progress=True)
     info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(),
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
-            "checkpoint": str(result.checkpoint)}
+            "skipped_steps": result.skipped, "checkpoint": str(result.checkpoint)}
     return model, _finish(run, info, previous)
 
 
@@ -194,7 +194,7 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
                             progress=True)
     info = {"model": "examiner", "name": name, "fit": record, "config": model.config.to_dict(),
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
-            "checkpoint": str(result.selected or result.checkpoint)}
+            "skipped_steps": result.skipped, "checkpoint": str(result.selected or result.checkpoint)}
     if validation_subjects:
         info.update(selected_step=result.selected_step, validation_auroc={str(k): v for k, v in result.validation.items()})
     return model, _finish(run, info, previous)

@@ -1,5 +1,7 @@
 """Train the Examiner from scratch: Adam on the BCE of sampled pairs, seeded, atomic checkpoints,
-and optional model selection on validation data (the weights of the best validated step are kept)."""
+optional model selection on validation data (the weights of the best validated step are kept), and a
+non-finite guard (a step with a NaN/Inf loss or gradient is skipped and counted; ``max_skipped``
+consecutive ones stop the run; non-finite weights are never saved)."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
 from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_atomic, save_checkpoint
+from trioman.toolkit.train.guard import StepGuard, check_weights
 
 
 @dataclass(frozen=True)
@@ -28,6 +31,7 @@ class ExaminerTrainConfig:
     keep_checkpoints: int = 2
     seed: int = 0
     pairing: str = "contrast"  # sample_pairs: "contrast" (default) or "paper"
+    max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient that stop the run
 
     def __post_init__(self) -> None:
         if self.pairing not in PAIRINGS:
@@ -42,18 +46,21 @@ class ExaminerTrainConfig:
             raise ValueError(f"checkpoint_every: must be >= 1, got {self.checkpoint_every}")
         if self.keep_checkpoints < 1:
             raise ValueError(f"keep_checkpoints: must be >= 1, got {self.keep_checkpoints}")
+        if not isinstance(self.max_skipped, int) or self.max_skipped < 1:
+            raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
 
 class ExaminerTrainResult(NamedTuple):
-    losses: list[float]  # one per step run in this call
+    losses: list[float]  # one per step of this call that updated the model (skipped ones excluded)
     step: int  # the step reached (resumed runs count from their checkpoint)
     checkpoint: Path | None  # the last checkpoint written, if a run folder was given
     selected_step: int | None = None  # with ``validate``: the step whose weights the model now holds
     validation: dict[int, float] | None = None  # with ``validate``: {step: value} of every validation
     selected: Path | None = None  # with ``validate`` and a run folder: run/selected.pt
+    skipped: int = 0  # steps skipped for a non-finite loss or gradient, over the whole run
 
 
 def _batches(data: Iterable[ExaminerBatch]) -> Iterator[ExaminerBatch]:
@@ -87,10 +94,14 @@ def train_examiner(
     step of the highest value, which are also written to run/selected.pt (checkpoint format, so
     ``load_examiner`` and the ONNX export read it) when training ends. The record (values and the
     selected weights) travels in every checkpoint, so a resumed run selects as an uninterrupted one.
+
+    A step with a non-finite loss or gradient is skipped and counted (``ExaminerTrainResult.skipped``,
+    kept in the checkpoints); ``config.max_skipped`` consecutive ones raise ``NonFiniteError``; a
+    checkpoint is never written from non-finite weights.
     """
     rng = torch.Generator().manual_seed(config.seed)  # the only randomness of the loop: pair sampling
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    step, saved = 0, None
+    step, saved, skipped = 0, None, 0
     history: dict[int, float] = {}
     best: tuple[int, dict[str, torch.Tensor]] | None = None  # (step, weights) of the best validation
     found = latest_checkpoint(Path(run)) if run is not None else None
@@ -101,11 +112,13 @@ def train_examiner(
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         rng.set_state(state["rng"])
-        step, saved = int(state["step"]), found
+        step, saved, skipped = int(state["step"]), found, int(state.get("skipped", 0))
         if validate is not None and "selection" in state:
             sel = state["selection"]
             history = {int(k): float(v) for k, v in sel["validation"].items()}
             best = (int(sel["step"]), sel["model"])
+    guard = StepGuard("examiner", config.max_skipped, skipped)
+    hint = f"Lower the learning rate (lr={config.lr:g}) or check the data."
     model.train()
     losses: list[float] = []
     batches = _batches(data)
@@ -115,13 +128,20 @@ def train_examiner(
         upper, _ = model.branch_logits(pairs.candidate, pairs.reference)
         loss = examiner_loss(upper, pairs.target)
         optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        losses.append(loss.item())
+        if guard.finite_ok(loss, step, "loss", hint):
+            loss.backward()
+            if guard.grads_ok(model.parameters(), step, hint):
+                optimizer.step()
+                losses.append(loss.item())
+            else:
+                optimizer.zero_grad(set_to_none=True)
         step += 1
         bar.update(1)
-        bar.set_postfix(loss=f"{losses[-1]:.4f}", **({"val": f"{history[max(history)]:.3f}"} if history else {}))
+        bar.set_postfix(loss=f"{losses[-1]:.4f}" if losses else "-", **({"val": f"{history[max(history)]:.3f}"} if history else {}),
+                        **({"skipped": guard.skipped} if guard.skipped else {}))
         boundary = step % config.checkpoint_every == 0 or step == config.steps
+        if boundary and (validate is not None or run is not None):  # before a validation or a save
+            check_weights(model, "examiner", step, saved)
         if validate is not None and boundary:
             history[step] = _validate(model, validate)
             if best is None or history[step] > history[best[0]]:
@@ -134,6 +154,7 @@ def train_examiner(
                 "train": config.to_dict(),
                 "optimizer": optimizer.state_dict(),
                 "rng": rng.get_state(),
+                "skipped": guard.skipped,
                 **({"selection": {"validation": {str(k): v for k, v in history.items()}, "step": best[0], "model": best[1]}}
                    if best is not None else {}),
             }
@@ -141,13 +162,13 @@ def train_examiner(
     bar.close()
     model.eval()
     if validate is None:
-        return ExaminerTrainResult(losses, step, saved)
+        return ExaminerTrainResult(losses, step, saved, skipped=guard.skipped)
     selected = None
     if best is not None:
         model.load_state_dict(best[1])
         if run is not None:
             selected = _save_selected(Path(run), best[0], best[1], model, config, history[best[0]])
-    return ExaminerTrainResult(losses, step, saved, best[0] if best else None, history, selected)
+    return ExaminerTrainResult(losses, step, saved, best[0] if best else None, history, selected, guard.skipped)
 
 
 def _validate(model: Examiner, validate: Callable[[Examiner], float]) -> float:

@@ -1,4 +1,6 @@
-"""Train the Refiner from scratch: Adam on ``refiner_loss``, atomic resumable checkpoints.
+"""Train the Refiner from scratch: Adam on ``refiner_loss``, atomic resumable checkpoints, and a
+non-finite guard (a step with a NaN/Inf loss or gradient is skipped and counted; ``max_skipped``
+consecutive ones stop the run; non-finite weights are never saved).
 
 Determinism: the loop draws no random numbers. The batch of step s is ``batches(s)`` (so a resumed
 run sees exactly the batches it would have seen), and the initial weights come from
@@ -22,6 +24,7 @@ from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inp
 from trioman.toolkit.refiner.config import RefinerConfig
 from trioman.toolkit.refiner.loss import RefinerLossWeights, refiner_loss
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from trioman.toolkit.train.guard import StepGuard, check_weights
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,7 @@ class RefinerTrainConfig:
     checkpoint_every: int = 250
     keep_checkpoints: int = 2
     weights: RefinerLossWeights = field(default_factory=RefinerLossWeights)
+    max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient that stop the run
 
     def __post_init__(self) -> None:
         if not isinstance(self.steps, int) or self.steps < 1:
@@ -44,15 +48,18 @@ class RefinerTrainConfig:
             raise ValueError(f"checkpoint_every: must be >= 1, got {self.checkpoint_every}")
         if self.keep_checkpoints < 1:
             raise ValueError(f"keep_checkpoints: must be >= 1, got {self.keep_checkpoints}")
+        if not isinstance(self.max_skipped, int) or self.max_skipped < 1:
+            raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
 
 class RefinerTrainResult(NamedTuple):
-    losses: list[float]  # total loss of each step run in this call
+    losses: list[float]  # total loss of each step of this call that updated the model (skipped ones excluded)
     step: int  # the step reached (a resumed run counts from its checkpoint)
     checkpoint: Path | None  # the last checkpoint written or resumed from, if a run folder was given
+    skipped: int = 0  # steps skipped for a non-finite loss or gradient, over the whole run
 
 
 def train_step(
@@ -62,14 +69,27 @@ def train_step(
     weights: RefinerLossWeights = RefinerLossWeights(),
     lpips: nn.Module | None = None,
     grad_clip: float = 1.0,
-) -> dict[str, float]:
-    """One optimisation step on ``batch`` -> {'total', 'l1', 'ssim'[, 'lpips']} (before the step)."""
+    guard: StepGuard | None = None,
+    step: int = 0,
+) -> dict[str, float] | None:
+    """One optimisation step on ``batch`` -> {'total', 'l1', 'ssim'[, 'lpips']} (before the step).
+
+    With ``guard``, a non-finite loss or gradient skips the update (the guard counts it; ``step`` names
+    it in its message) and returns None."""
     check_batch(batch)
     conditions = model.config.conditions
-    outputs = model(*refiner_inputs(batch, conditions))
-    total, terms = refiner_loss(outputs, refiner_targets(batch, conditions), lpips=lpips, weights=weights)
     optimizer.zero_grad(set_to_none=True)
+    hint = f"Lower the learning rate (lr={optimizer.param_groups[0]['lr']:g}) or check the data."
+    outputs = model(*refiner_inputs(batch, conditions))
+    if guard is not None and not guard.finite_ok(outputs, step, "output", hint):  # the loss refuses NaN images
+        return None
+    total, terms = refiner_loss(outputs, refiner_targets(batch, conditions), lpips=lpips, weights=weights)
+    if guard is not None and not guard.finite_ok(total, step, "loss", hint):
+        return None
     total.backward()
+    if guard is not None and not guard.grads_ok(model.parameters(), step, hint):
+        optimizer.zero_grad(set_to_none=True)
+        return None
     if grad_clip > 0:
         nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
     optimizer.step()
@@ -90,10 +110,12 @@ def train_refiner(
     With ``run``, a checkpoint {step, model, config, train, optimizer} is written atomically to
     run/checkpoints every ``checkpoint_every`` steps and at the end, and a run that finds one resumes
     from it. ``lpips`` (e.g. ``trioman.toolkit.lpips.load_lpips()``, None when its weights are absent)
-    adds the LPIPS term.
+    adds the LPIPS term. A step with a non-finite loss or gradient is skipped and counted
+    (``RefinerTrainResult.skipped``, kept in the checkpoints); ``config.max_skipped`` consecutive ones
+    raise ``NonFiniteError``; a checkpoint is never written from non-finite weights.
     """
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    step, saved = 0, None
+    step, saved, skipped = 0, None, 0
     found = latest_checkpoint(Path(run)) if run is not None else None
     if found is not None:
         state = load_checkpoint(found)
@@ -101,27 +123,32 @@ def train_refiner(
             raise ValueError(f"{found}: checkpoint config {state['config']} differs from the model's {model.config.to_dict()}")
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
-        step, saved = int(state["step"]), found
+        step, saved, skipped = int(state["step"]), found, int(state.get("skipped", 0))
+    guard = StepGuard("refiner", config.max_skipped, skipped)
     model.train()
     losses: list[float] = []
     bar = tqdm(total=config.steps, initial=step, desc="refiner", unit="step", disable=None if progress else True)
     while step < config.steps:
-        losses.append(train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip)["total"])
+        terms = train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip, guard, step)
+        if terms is not None:
+            losses.append(terms["total"])
         step += 1
         bar.update(1)
-        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+        bar.set_postfix(loss=f"{losses[-1]:.4f}" if losses else "-", **({"skipped": guard.skipped} if guard.skipped else {}))
         if run is not None and (step % config.checkpoint_every == 0 or step == config.steps):
+            check_weights(model, "refiner", step, saved)
             state = {
                 "step": step,
                 "model": model.state_dict(),
                 "config": model.config.to_dict(),
                 "train": config.to_dict(),
                 "optimizer": optimizer.state_dict(),
+                "skipped": guard.skipped,
             }
             saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
     bar.close()
     model.eval()
-    return RefinerTrainResult(losses, step, saved)
+    return RefinerTrainResult(losses, step, saved, guard.skipped)
 
 
 def load_refiner(path: str | os.PathLike, exportable: bool = False) -> nn.Module:

@@ -114,3 +114,23 @@ def test_validation_keeps_the_first_best_step_and_survives_a_resume(tmp_path):
         torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)
     with pytest.raises(ValueError, match="validate: returned NaN"):
         train_examiner(fresh(), data, ExaminerTrainConfig(steps=2, checkpoint_every=2), validate=lambda m: float("nan"))
+
+
+def test_non_finite_gradients_are_skipped_and_repeated_ones_stop(tmp_path):
+    g = torch.Generator().manual_seed(1)
+    data = [synthetic_batch(4, TINY.img_size, g) for _ in range(2)]
+    model = create_examiner(TINY)
+    calls, bad = [0], {1, 2}  # NaN gradients on these backward calls (0-based); None: on every call
+
+    def poison(grad):
+        calls[0] += 1
+        return grad * float("nan") if bad is None or calls[0] - 1 in bad else grad
+
+    next(model.parameters()).register_hook(poison)
+    result = train_examiner(model, data, ExaminerTrainConfig(steps=5, lr=1e-3, checkpoint_every=5), run=tmp_path)
+    assert result.skipped == 2 and len(result.losses) == 3 and result.step == 5
+    assert torch.load(result.checkpoint, weights_only=True)["skipped"] == 2
+    bad = None
+    with pytest.raises(FloatingPointError, match="examiner: 2 consecutive steps"):
+        train_examiner(model, data, ExaminerTrainConfig(steps=9, lr=1e-3, checkpoint_every=5, max_skipped=2), run=tmp_path)
+    assert [p.name for p in list_checkpoints(tmp_path)] == ["ckpt_0000005.pt"]

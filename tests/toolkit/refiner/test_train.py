@@ -89,3 +89,46 @@ def test_checkpoint_round_trip_resume_and_determinism(tmp_path):
 
     with pytest.raises(ValueError, match="differs"):
         train_refiner(create_refiner(tiny_config()), batches, config, run=tmp_path)
+
+
+def _poison_output(model, steps: set[int], counter: list[int]):
+    """A forward hook that makes the model's output NaN on the given calls (0-based)."""
+
+    def hook(module, inputs, output):
+        counter[0] += 1
+        return output * float("nan") if counter[0] - 1 in steps else output
+
+    return model.register_forward_hook(hook)
+
+
+def test_non_finite_steps_are_skipped_and_counted(tmp_path):
+    model = create_refiner(tiny_config(), seed=0)
+    _poison_output(model, {2, 3}, [0])
+    config = RefinerTrainConfig(steps=6, lr=1e-3, checkpoint_every=3)
+    result = train_refiner(model, synthetic_batch, config, run=tmp_path)
+    assert result.step == 6 and result.skipped == 2 and len(result.losses) == 4
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    assert torch.load(result.checkpoint, weights_only=True)["skipped"] == 2
+
+
+def test_repeated_non_finite_steps_stop_and_keep_the_last_good_checkpoint(tmp_path):
+    model = create_refiner(tiny_config(), seed=0)
+    _poison_output(model, set(range(2, 100)), [0])
+    config = RefinerTrainConfig(steps=10, lr=1e-3, checkpoint_every=2, max_skipped=3)
+    with pytest.raises(FloatingPointError, match="refiner: 3 consecutive steps .* the run stops.*Lower the learning rate"):
+        train_refiner(model, synthetic_batch, config, run=tmp_path)
+    assert latest_checkpoint(tmp_path).name == "ckpt_0000004.pt"  # steps 3, 4 skipped (weights unchanged, saved)
+
+
+def test_non_finite_weights_are_never_saved(tmp_path):
+    model = create_refiner(tiny_config(), seed=0)
+
+    def batches(step):
+        if step == 2:
+            with torch.no_grad():
+                next(model.parameters()).fill_(float("inf"))
+        return synthetic_batch(step)
+
+    with pytest.raises(FloatingPointError, match="weights at step 4 are not finite.*ckpt_0000002.pt"):
+        train_refiner(model, batches, RefinerTrainConfig(steps=6, lr=1e-3, checkpoint_every=2), run=tmp_path)
+    assert latest_checkpoint(tmp_path).name == "ckpt_0000002.pt"
