@@ -62,11 +62,11 @@ def test_an_output_path_that_is_a_folder_is_named(avatar_dir, tmp_path, capsys):
     assert_one_line(capsys.readouterr().err, f"{tmp_path / 'img.png'}: is a directory")
 
 
-class _FullDisk:
+class _FullDiskFile:
     """A file whose writes fail like a full disk's (errno ENOSPC, no file name)."""
 
-    def __init__(self, path, mode="r", *args, **kw):
-        self._f = open(path, mode, *args, **kw)
+    def __init__(self, f):
+        self._f = f
 
     def write(self, data):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
@@ -78,10 +78,16 @@ class _FullDisk:
         self._f.close()
 
 
+def full_disk_open(path, mode="r", *args, **kw):
+    """open() on a full disk: files open, writes fail."""
+    f = open(path, mode, *args, **kw)
+    return _FullDiskFile(f) if any(c in mode for c in "wax+") else f
+
+
 def test_a_full_disk_names_the_file_and_leaves_nothing(avatar_dir, tmp_path, capsys, monkeypatch):
     from trioman.runtime import image_io
 
-    monkeypatch.setattr(image_io, "open", _FullDisk, raising=False)
+    monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
     out = tmp_path / "out" / "img.png"
     out.parent.mkdir()
     assert render(avatar_dir, out) == 1

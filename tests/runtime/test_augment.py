@@ -305,6 +305,33 @@ def test_bad_inputs_fail_before_any_work(inputs, tmp_path, capsys, args, message
     assert not out.exists()
 
 
+def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, straight, tmp_path, capsys, monkeypatch):
+    # issue 18, case 2: the disk fills while the third frame's image is written
+    from tests.test_cli import full_disk_open
+    from trioman.runtime import image_io
+
+    out = tmp_path / "full"
+    writes = []
+
+    def filling(path, mode="r", *args, **kw):
+        if "w" in mode:
+            writes.append(path)
+        return full_disk_open(path, mode, *args, **kw) if len(writes) > 7 else open(path, mode, *args, **kw)
+
+    monkeypatch.setattr(image_io, "open", filling, raising=False)
+    argv = ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
+            "--examiner", str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT),
+            "--seed", "7", "--quiet"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert f"{out / 'images'}" in err and "_c0.png: no space left on the device" in err, err
+    assert not [p for p in out.rglob("*") if image_io.is_temp_name(p.name)]  # no partial file
+    monkeypatch.undo()
+    assert main(argv + ["--resume"]) == 0  # the finished frames stay; the run completes
+    assert snapshot(out) == straight.files
+
+
 def test_threshold_without_an_examiner_is_refused(inputs, tmp_path):
     with pytest.raises(ValueError, match=r"--threshold: 0.5 needs an Examiner \(--examiner\)"):
         run(inputs, tmp_path / "o", examiner=False, threshold=0.5)

@@ -66,8 +66,16 @@ def read_record(run: Path) -> dict[str, Any]:
 
 
 def write_record(run: Path, record: dict[str, Any]) -> None:
-    Path(run).mkdir(parents=True, exist_ok=True)
-    atomic_write_text(Path(run) / CONFIG_JSON, json.dumps(record, indent=2) + "\n")
+    """Write config.json (creating ``run``); a failed write (disk full) leaves no folder it created."""
+    run = Path(run)
+    fresh = not run.exists()
+    run.mkdir(parents=True, exist_ok=True)
+    try:
+        atomic_write_text(run / CONFIG_JSON, json.dumps(record, indent=2) + "\n")
+    except BaseException:
+        if fresh:
+            run.rmdir()
+        raise
 
 
 def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -239,12 +239,26 @@ def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_pat
     # torch.save to a file reported a full disk as "RuntimeError: ... unexpected pos" (issue 18, case 2)
     import errno
 
-    from tests.test_cli import _FullDisk
+    from tests.test_cli import full_disk_open
     from trioman.runtime import image_io
     from trioman.toolkit.train.checkpoint import checkpoint_path, save_checkpoint
 
-    monkeypatch.setattr(image_io, "open", _FullDisk, raising=False)
+    monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
     with pytest.raises(OSError) as err:
         save_checkpoint(tmp_path, 5, {"step": 5, "model": {"w": torch.ones(3)}, "config": "{}"})
     assert err.value.errno == errno.ENOSPC and err.value.filename == str(checkpoint_path(tmp_path, 5))
     assert list((tmp_path / "checkpoints").iterdir()) == []
+
+
+def test_command_line_train_on_a_full_disk_is_one_line_and_leaves_no_run(subject, tmp_path, capsys, monkeypatch):
+    from tests.test_cli import full_disk_open
+    from trioman.cli import main
+    from trioman.runtime import image_io
+
+    monkeypatch.setattr("trioman.toolkit.train.command.load_lpips_or_say_why", lambda command: None)
+    monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
+    out = tmp_path / "run"
+    assert main(["train", str(subject), "--out", str(out), "--iterations", "2", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"{out / 'config.json'}: no space left on the device" in err
+    assert not out.exists()
