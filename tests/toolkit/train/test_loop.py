@@ -262,3 +262,17 @@ def test_command_line_train_on_a_full_disk_is_one_line_and_leaves_no_run(subject
     err = capsys.readouterr().err
     assert "Traceback" not in err and f"{out / 'config.json'}: no space left on the device" in err
     assert not out.exists()
+
+
+def test_a_resume_at_another_thread_count_says_so(subject, tmp_path, capsys):
+    cfg = TrainConfig(iterations=2, checkpoint_every=1, avatar=TINY_AVATAR)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        run = train(subject, tmp_path / "run", cfg, progress=False, stop_after=1)
+        torch.set_num_threads(2)
+        train(subject, run, cfg, resume=True, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    assert json.loads((run / "config.json").read_text())["threads"] == 1
+    assert "was trained with 1 torch threads, this process has 2" in capsys.readouterr().err
