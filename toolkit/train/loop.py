@@ -21,7 +21,7 @@ from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.config import TrainConfig
-from trioman.toolkit.train.data import FrameSet, join_frames, load_frames
+from trioman.toolkit.train.data import join_frames, load_frames
 from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
