@@ -1,35 +1,16 @@
-"""``trioman animate AVATAR --motion M --out out.mp4``: an avatar driven by a motion, as an MP4.
+"""An avatar driven by a motion, as an MP4 (``trioman animate``: trioman/commands/animate.py).
 
 Runs on the runtime alone (numpy + onnxruntime + OpenCV, no torch): numpy FK + LBS poses the
 Gaussians (plus the avatar's ONNX pose-dependent deltas), the numpy splat renderer draws them.
 The camera is ``fixed`` (one view that keeps the whole clip in frame) or ``orbit`` (a full turn about
-the subject over the clip). Reports the time per frame by stage.
-
-Module contract (trioman/cli.py): standard-library imports only at module level.
+the subject over the clip). Reports the time per frame by stage. The checks of its options
+(``parse_background``, ``check_size``, ``check_video_size``, ``check_angles``) name the command-line flag,
+and the render command uses them too. Standard-library imports only at module level.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("avatar", metavar="AVATAR", help="avatar folder (trioman export avatar)")
-    parser.add_argument("--motion", required=True,
-                        help="a shipped motion (walk, wave, squat, turn, jump, step, arms_raised), a motion .npz "
-                             "file, or a subject folder (its test poses; SUBJECT:SEQUENCE for one sequence)")
-    parser.add_argument("--out", required=True, help="output MP4 path")
-    parser.add_argument("--camera", choices=("fixed", "orbit"), default="fixed", help="camera path (default fixed)")
-    parser.add_argument("--azimuth", type=float, default=20.0, help="degrees; 0 = in front of the subject (default 20)")
-    parser.add_argument("--elevation", type=float, default=5.0, help="degrees above the subject's centre (default 5)")
-    parser.add_argument("--size", type=int, default=512, help="image side in pixels (default 512)")
-    parser.add_argument("--frames", type=int, default=None, help="length of a shipped motion (default: its own)")
-    parser.add_argument("--fps", type=float, default=None, help="video frame rate (default: the motion's)")
-    parser.add_argument("--background", default="1,1,1", help="r,g,b in [0, 1] (default white)")
-    parser.add_argument("--frames-dir", default=None, help="also write every frame as a PNG here")
-    parser.add_argument("--no-pose-dependent", action="store_true", help="skip the avatar's pose-dependent deltas")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def parse_background(text: str):
@@ -144,28 +125,3 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
     return {"frames": n, "seconds": total, "pose_ms": 1000 * t_pose / n, "render_ms": 1000 * t_render / n,
             "ms_per_frame": 1000 * total / n, "size": size, "gaussians": avatar.num_gaussians, "video": str(out),
             "empty": empty}
-
-
-def run(args: argparse.Namespace) -> int:
-    from trioman.runtime.formats import load_avatar
-    from trioman.runtime.formats.motion import motion_from_spec
-
-    bg = parse_background(args.background)
-    if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--frames: must be >= 1, got {args.frames}")
-    if args.fps is not None and not args.fps > 0:
-        raise ValueError(f"--fps: must be > 0, got {args.fps}")
-    check_video_size(args.size)
-    check_angles(azimuth=args.azimuth, elevation=args.elevation)
-    avatar = load_avatar(args.avatar)
-    motion = motion_from_spec(args.motion, avatar.skeleton, args.frames)
-    r = animate(avatar, motion, args.out, args.camera, args.azimuth, args.elevation, args.size, bg, args.fps,
-                args.frames_dir, not args.no_pose_dependent, not args.quiet)
-    print(f"animate: {r['frames']} frames of {motion.name!r} ({r['gaussians']} Gaussians, {r['size']}x{r['size']}) "
-          f"in {r['seconds']:.1f} s: {r['ms_per_frame']:.1f} ms/frame (pose {r['pose_ms']:.1f}, render "
-          f"{r['render_ms']:.1f}), {1000 / r['ms_per_frame']:.1f} fps")
-    if r["empty"]:
-        print(f"animate: warning: {len(r['empty'])} of {r['frames']} frames show nothing of the avatar (first: frame "
-              f"{r['empty'][0]})")
-    print(f"animate: video {r['video']}" + (f"; frames {args.frames_dir}" if args.frames_dir else ""))
-    return 0

@@ -1,22 +1,11 @@
-"""``trioman inspect PATH``: validate a subject folder and print a summary.
+"""A subject folder's summary lines (``trioman inspect``: trioman/commands/inspect.py).
 
-Module contract (trioman/cli.py): standard-library imports only at module level; numpy and the
-runtime are imported inside ``run``. An invalid subject raises FormatError (a ValueError), which the
-CLI prints as one line before exiting with status 1.
+Standard-library imports only at module level; numpy and the runtime are imported inside ``summarize``.
 """
 
 from __future__ import annotations
 
-import argparse
 from typing import Any
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", metavar="PATH", help="subject folder (subject.json, body.npz, frames.npz, images/, masks/)")
-    parser.add_argument(
-        "--no-images", action="store_true",
-        help="skip the per-frame check that every image and mask exists with the right size",
-    )
 
 
 def _noise_entries(value: Any, prefix: str = "") -> list[tuple[str, Any]]:
@@ -84,13 +73,3 @@ def summarize(subject) -> list[str]:
     else:
         lines.append("poses_true  not recorded")
     return lines
-
-
-def run(args: argparse.Namespace) -> int:
-    from trioman.runtime.formats import load_subject
-
-    subject = load_subject(args.path, check_images=not args.no_images)
-    for line in summarize(subject):
-        print(line)
-    print("valid" + ("" if not args.no_images else " (images not checked)"))
-    return 0

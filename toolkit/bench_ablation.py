@@ -154,7 +154,7 @@ def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
 
 def bench_ablation(args: argparse.Namespace) -> dict:
     from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
-    from trioman.toolkit.train.command import load_lpips_or_say_why
+    from trioman.toolkit.lpips import load_lpips_or_say_why
 
     corpus, out = Path(args.corpus), Path(args.out)
     if not (corpus / CORPUS_JSON).is_file():

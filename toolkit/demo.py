@@ -45,7 +45,7 @@ def say(line: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.stages import StageLog, mib
-    from trioman.toolkit.train.command import load_lpips_or_say_why
+    from trioman.toolkit.lpips import load_lpips_or_say_why
 
     out = Path(args.out)
     progress = not args.quiet

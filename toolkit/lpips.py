@@ -282,3 +282,12 @@ def load_lpips(folder: str | os.PathLike | None = None, device: str | torch.devi
     if paths is None:
         return None
     return LPIPS.from_files(paths.backbone, paths.lin, device=device)
+
+
+def load_lpips_or_say_why(command: str):
+    """The LPIPS (AlexNet) model when its weights are available locally, else None after saying so once
+    (``command: NOT_FOUND_MESSAGE``)."""
+    model = load_lpips()
+    if model is None:
+        print(f"{command}: {NOT_FOUND_MESSAGE}")
+    return model

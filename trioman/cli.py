@@ -1,6 +1,7 @@
 """The ``trioman`` command: one entry point, one subcommand per job.
 
-Each subcommand lives in a small module exposing ``add_arguments(parser)`` and ``run(args) -> int``.
+Each subcommand lives in its own module, ``trioman/commands/<name>.py``, exposing ``add_arguments(parser)``
+and ``run(args) -> int``.
 Those modules import only the standard library at module level, so ``trioman --help`` and every
 runtime subcommand work where torch is not installed; a training subcommand checks its extra first.
 """
@@ -29,19 +30,19 @@ class Command:
 # Order is the order shown by ``trioman --help``.
 COMMANDS = (
     Command("demo", "trioman.toolkit.demo", "run the whole pipeline on the embedded synthetic subject", "train"),
-    Command("synth", "trioman.toolkit.synth.command", "render a synthetic subject (monocular video + poses + cameras)", "train"),
-    Command("train", "trioman.toolkit.train.command", "train a Gaussian avatar on a subject", "train"),
-    Command("eval", "trioman.toolkit.eval_command", "evaluate a trained avatar: metrics, grid, video", "train"),
-    Command("export", "trioman.export.command", "export a trained avatar (portable folder) or the Refiner/Examiner (ONNX fp32/int8/fp16)", "train"),
-    Command("import", "trioman.toolkit.importers.command", "import a real capture (ExAvatar layouts, SMPL-X fits) as a subject", "smplx"),
-    Command("synth-corpus", "trioman.toolkit.corpus_command", "synthetic subjects + baselines + triplets for the Refiner/Examiner", "train"),
-    Command("triplets", "trioman.toolkit.triplets_command", "GT / coarse / normal-map triplets of a trained run", "train"),
-    Command("train-refiner", "trioman.toolkit.refiner_command", "train the Refiner on a synthetic corpus", "train"),
-    Command("train-examiner", "trioman.toolkit.examiner_command", "train the Examiner on a synthetic corpus", "train"),
-    Command("animate", "trioman.runtime.animate", "animate an exported avatar with a motion, as an MP4 (no torch)"),
-    Command("render", "trioman.runtime.render_command", "render one image of an exported avatar (no torch)"),
-    Command("augment", "trioman.runtime.augment_command", "pseudo-GT frames: Generator, Refiner, Examiner on an exported avatar (no torch)"),
-    Command("inspect", "trioman.runtime.inspect", "validate a subject folder and print a summary"),
+    Command("synth", "trioman.commands.synth", "render a synthetic subject (monocular video + poses + cameras)", "train"),
+    Command("train", "trioman.commands.train", "train a Gaussian avatar on a subject", "train"),
+    Command("eval", "trioman.commands.eval", "evaluate a trained avatar: metrics, grid, video", "train"),
+    Command("export", "trioman.commands.export", "export a trained avatar (portable folder) or the Refiner/Examiner (ONNX fp32/int8/fp16)", "train"),
+    Command("import", "trioman.commands.import_", "import a real capture (ExAvatar layouts, SMPL-X fits) as a subject", "smplx"),
+    Command("synth-corpus", "trioman.commands.synth_corpus", "synthetic subjects + baselines + triplets for the Refiner/Examiner", "train"),
+    Command("triplets", "trioman.commands.triplets", "GT / coarse / normal-map triplets of a trained run", "train"),
+    Command("train-refiner", "trioman.commands.train_refiner", "train the Refiner on a synthetic corpus", "train"),
+    Command("train-examiner", "trioman.commands.train_examiner", "train the Examiner on a synthetic corpus", "train"),
+    Command("animate", "trioman.commands.animate", "animate an exported avatar with a motion, as an MP4 (no torch)"),
+    Command("render", "trioman.commands.render", "render one image of an exported avatar (no torch)"),
+    Command("augment", "trioman.commands.augment", "pseudo-GT frames: Generator, Refiner, Examiner on an exported avatar (no torch)"),
+    Command("inspect", "trioman.commands.inspect", "validate a subject folder and print a summary"),
     Command("bench", "trioman.toolkit.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )
 

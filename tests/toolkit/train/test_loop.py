@@ -225,7 +225,7 @@ def test_kill_9_and_resume_gives_the_weights_of_an_uninterrupted_run(subject, tm
 def test_command_line_resume_refusal_and_extension(subject, tmp_path, capsys, monkeypatch):
     from trioman.cli import main
 
-    monkeypatch.setattr("trioman.toolkit.train.command.load_lpips_or_say_why", lambda command: None)
+    monkeypatch.setattr("trioman.toolkit.lpips.load_lpips_or_say_why", lambda command: None)
     out = str(tmp_path / "cli")
     assert main(["train", str(subject), "--out", out, "--iterations", "2", "--quiet"]) == 0
     assert main(["train", str(subject), "--out", out, "--iterations", "2", "--resume", "--seed", "7", "--quiet"]) == 1
@@ -255,7 +255,7 @@ def test_command_line_train_on_a_full_disk_is_one_line_and_leaves_no_run(subject
     from trioman.cli import main
     from trioman.runtime import image_io
 
-    monkeypatch.setattr("trioman.toolkit.train.command.load_lpips_or_say_why", lambda command: None)
+    monkeypatch.setattr("trioman.toolkit.lpips.load_lpips_or_say_why", lambda command: None)
     monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
     out = tmp_path / "run"
     assert main(["train", str(subject), "--out", str(out), "--iterations", "2", "--quiet"]) == 1

@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.model_training import FitConfig, fit_refiner
-    from trioman.toolkit.train.command import load_lpips_or_say_why
+    from trioman.toolkit.lpips import load_lpips_or_say_why
 
     fit = FitConfig(steps=args.steps, batch=args.batch, crop=args.crop, seed=args.seed, baseline_frames=args.baseline_frames)
     _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=load_lpips_or_say_why("train-refiner"))

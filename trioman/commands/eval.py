@@ -20,7 +20,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from trioman.toolkit.evaluate import evaluate
-    from trioman.toolkit.train.command import load_lpips_or_say_why
+    from trioman.toolkit.lpips import load_lpips_or_say_why
 
     out = Path(args.out) if args.out else Path(args.run) / f"eval_{args.split}"
     summary = evaluate(args.run, args.split, out, lpips=load_lpips_or_say_why("eval"), progress=not args.quiet,

@@ -42,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from trioman.toolkit import lpips
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
 
@@ -62,21 +63,11 @@ def run(args: argparse.Namespace) -> int:
     if augment is not None:
         overrides["augment"] = augment
     cfg = preset(args.preset, **overrides)
-    lpips = load_lpips_or_say_why("train")
-    run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet, lpips=lpips,
+    run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet,
+                    lpips=lpips.load_lpips_or_say_why("train"),
                     extend_iterations=args.extend_iterations)
     print(f"train: run {run_dir} (checkpoints in {Path(run_dir) / 'checkpoints'}, log {Path(run_dir) / 'train_log.csv'})")
     return 0
-
-
-def load_lpips_or_say_why(command: str):
-    """The LPIPS (AlexNet) model when its weights are available locally, else None after saying so once."""
-    from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
-
-    model = load_lpips()
-    if model is None:
-        print(f"{command}: {NOT_FOUND_MESSAGE}")
-    return model
 
 
 _AUGMENT_FLAGS = {"refiner": "refiner", "examiner": "examiner", "per_frame": "per_frame", "threshold": "threshold",
