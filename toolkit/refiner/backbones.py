@@ -1,16 +1,15 @@
 """Backbone registry: ``create_refiner`` builds the model named by ``RefinerConfig.backbone``.
 
-"scratch" is the from-scratch :class:`Refiner`. "sd-turbo" is the extension point for the paper's
-pretrained backbone (SD-Turbo VAE + U-Net, as in Difix; docs/design.md, "Refiner"): it checks what such a
-build needs (the diffusers package and a local SD-Turbo folder in diffusers layout; nothing is ever
-downloaded) and says what is missing; the adapter itself is not written yet.
+"scratch" is the from-scratch :class:`Refiner`. "sd-turbo" is the paper's pretrained backbone (SD-Turbo
+VAE + U-Net, as in Difix; :mod:`trioman.toolkit.refiner.sd_turbo`), built from a local folder in diffusers
+layout (``RefinerConfig.pretrained_path``; nothing is ever downloaded) with the optional diffusers package
+(``trioman[diffusion]``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib.util
-from pathlib import Path
 from typing import Any, Callable
 
 import torch
@@ -22,7 +21,6 @@ from trioman.toolkit.refiner.model import Refiner
 # (config, exportable) -> a module with ``.config`` and the forward of Refiner (coarse, reference, normal) -> [B, V, 3, H, W]
 BackboneFactory = Callable[[RefinerConfig, bool], nn.Module]
 _BACKBONES: dict[str, BackboneFactory] = {}
-SD_TURBO_PARTS = ("model_index.json", "vae", "unet", "scheduler", "tokenizer", "text_encoder")
 
 
 class BackboneUnavailable(RuntimeError):
@@ -68,22 +66,8 @@ def _scratch(config: RefinerConfig, exportable: bool) -> nn.Module:
 
 @register_backbone("sd-turbo")
 def _sd_turbo(config: RefinerConfig, exportable: bool) -> nn.Module:
-    missing = []
     if importlib.util.find_spec("diffusers") is None:
-        missing.append("the diffusers package (pip install diffusers)")
-    if config.pretrained_path is None:
-        missing.append("pretrained_path: a local SD-Turbo folder in diffusers layout (stabilityai/sd-turbo)")
-    else:
-        root = Path(config.pretrained_path)
-        if not root.is_dir():
-            missing.append(f"pretrained_path: {root} is not a folder")
-        else:
-            missing += [f"{root / part}" for part in SD_TURBO_PARTS if not (root / part).exists()]
-    if missing:
-        raise BackboneUnavailable("backbone 'sd-turbo' needs, and this machine lacks: " + "; ".join(missing) + ". Nothing is downloaded.")
-    raise NotImplementedError(
-        "backbone 'sd-turbo': the adapter is not written yet. It would load AutoencoderKL (vae/) as E_t, E_g,"
-        " D_t, D_g with 1x1 skip convs (pix2pix-turbo), the UNet2DConditionModel (unet/) with its self-attention"
-        " wrapped to span the views, a precomputed 'remove degradation' prompt embedding, and one DDPM step at"
-        " a fixed timestep, in place of this factory."
-    )
+        raise BackboneUnavailable("backbone 'sd-turbo' needs the diffusers package: pip install 'trioman[diffusion]'")
+    from trioman.toolkit.refiner.sd_turbo import SdTurboRefiner
+
+    return SdTurboRefiner(config, exportable=exportable)

@@ -27,6 +27,9 @@ from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint,
 from trioman.toolkit.train.guard import StepGuard, check_weights
 
 
+MIXED_PRECISION = ("no", "bf16")
+
+
 @dataclass(frozen=True)
 class RefinerTrainConfig:
     steps: int = 2000
@@ -36,6 +39,8 @@ class RefinerTrainConfig:
     keep_checkpoints: int = 2
     weights: RefinerLossWeights = field(default_factory=RefinerLossWeights)
     max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient that stop the run
+    mixed_precision: str = "no"  # "bf16": forward and loss under torch.autocast (bf16 needs no loss scaling)
+    gradient_checkpointing: bool = False  # recompute activations in backward (models with enable_gradient_checkpointing)
 
     def __post_init__(self) -> None:
         if not isinstance(self.steps, int) or self.steps < 1:
@@ -50,6 +55,10 @@ class RefinerTrainConfig:
             raise ValueError(f"keep_checkpoints: must be >= 1, got {self.keep_checkpoints}")
         if not isinstance(self.max_skipped, int) or self.max_skipped < 1:
             raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
+        if self.mixed_precision not in MIXED_PRECISION:
+            raise ValueError(f"mixed_precision: expected one of {MIXED_PRECISION}, got {self.mixed_precision!r}")
+        if not isinstance(self.gradient_checkpointing, bool):
+            raise ValueError(f"gradient_checkpointing: must be a bool, got {self.gradient_checkpointing!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -71,19 +80,24 @@ def train_step(
     grad_clip: float = 1.0,
     guard: StepGuard | None = None,
     step: int = 0,
+    mixed_precision: str = "no",
 ) -> dict[str, float] | None:
-    """One optimisation step on ``batch`` -> {'total', 'l1', 'ssim'[, 'lpips']} (before the step).
+    """One optimisation step on ``batch`` (moved to the model's device) -> {'total', 'l1', 'ssim'[, 'lpips']}
+    (before the step). ``mixed_precision`` "bf16" runs the forward and the loss under torch.autocast.
 
     With ``guard``, a non-finite loss or gradient skips the update (the guard counts it; ``step`` names
     it in its message) and returns None."""
     check_batch(batch)
+    device = next(model.parameters()).device
+    batch = RefinerBatch(*(x.to(device) for x in batch))
     conditions = model.config.conditions
     optimizer.zero_grad(set_to_none=True)
     hint = f"Lower the learning rate (lr={optimizer.param_groups[0]['lr']:g}) or check the data."
-    outputs = model(*refiner_inputs(batch, conditions))
-    if guard is not None and not guard.finite_ok(outputs, step, "output", hint):  # the loss refuses NaN images
-        return None
-    total, terms = refiner_loss(outputs, refiner_targets(batch, conditions), lpips=lpips, weights=weights)
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=mixed_precision == "bf16"):
+        outputs = model(*refiner_inputs(batch, conditions))
+        if guard is not None and not guard.finite_ok(outputs, step, "output", hint):  # the loss refuses NaN images
+            return None
+        total, terms = refiner_loss(outputs.float(), refiner_targets(batch, conditions), lpips=lpips, weights=weights)
     if guard is not None and not guard.finite_ok(total, step, "loss", hint):
         return None
     total.backward()
@@ -104,8 +118,9 @@ def train_refiner(
     lpips: nn.Module | None = None,
     progress: bool = False,
 ) -> RefinerTrainResult:
-    """Train ``model`` in place for ``config.steps`` steps, step s on ``batches(s)``; ``progress``
-    shows a bar with the loss (on a terminal only).
+    """Train ``model`` in place (on its device) for ``config.steps`` steps, step s on ``batches(s)``;
+    ``progress`` shows a bar with the loss (on a terminal only). Parameters without ``requires_grad``
+    (the sd-turbo backbone's VAE encoder) stay frozen.
 
     With ``run``, a checkpoint {step, model, config, train, optimizer} is written atomically to
     run/checkpoints every ``checkpoint_every`` steps and at the end, and a run that finds one resumes
@@ -114,7 +129,11 @@ def train_refiner(
     (``RefinerTrainResult.skipped``, kept in the checkpoints); ``config.max_skipped`` consecutive ones
     raise ``NonFiniteError``; a checkpoint is never written from non-finite weights.
     """
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    if config.gradient_checkpointing:
+        if not hasattr(model, "enable_gradient_checkpointing"):
+            raise ValueError(f"gradient_checkpointing: the {model.config.backbone!r} backbone does not support it")
+        model.enable_gradient_checkpointing()
+    optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.lr)
     step, saved, skipped = 0, None, 0
     found = latest_checkpoint(Path(run)) if run is not None else None
     if found is not None:
@@ -129,7 +148,8 @@ def train_refiner(
     losses: list[float] = []
     bar = tqdm(total=config.steps, initial=step, desc="refiner", unit="step", disable=None if progress else True)
     while step < config.steps:
-        terms = train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip, guard, step)
+        terms = train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip, guard, step,
+                           config.mixed_precision)
         if terms is not None:
             losses.append(terms["total"])
         step += 1

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 
 import pytest
 import torch
@@ -10,7 +9,6 @@ import torch
 from tests.toolkit.refiner.helpers import open_zero_inits, tiny_config
 from trioman.toolkit.refiner import (
     CONDITIONS,
-    BackboneUnavailable,
     RefinerConfig,
     create_refiner,
     export_inputs,
@@ -166,14 +164,3 @@ def test_backbone_registry():
         create_refiner(tiny_config(backbone="nope"))
     with pytest.raises(ValueError, match="already registered"):
         register_backbone("scratch")(lambda config, exportable: None)
-
-
-def test_sd_turbo_says_what_is_missing(tmp_path):
-    with pytest.raises(BackboneUnavailable, match="pretrained_path"):
-        create_refiner(tiny_config(backbone="sd-turbo"))
-    (tmp_path / "vae").mkdir()
-    with pytest.raises(BackboneUnavailable) as err:
-        create_refiner(tiny_config(backbone="sd-turbo", pretrained_path=str(tmp_path)))
-    message = str(err.value)
-    assert str(tmp_path / "unet") in message and str(tmp_path / "vae") not in message
-    assert ("diffusers" in message) == (importlib.util.find_spec("diffusers") is None)

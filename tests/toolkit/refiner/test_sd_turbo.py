@@ -1,0 +1,160 @@
+"""The sd-turbo backbone on a tiny random SD-Turbo-like folder that the tests build from configs and save in
+diffusers layout (vae/, unet/, scheduler/, model_index.json, prompt_embeds.safetensors): shapes, views
+attending to each other, a training step, save -> load, ONNX parity, augment with the exported model, and
+a one-line error for each missing part of the folder."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("diffusers", reason="the sd-turbo backbone needs the diffusers package (pip install 'trioman[diffusion]')")
+
+from tests.export.test_avatar import tiny_run  # noqa: E402,F401 (fixture)
+from tests.toolkit.refiner.helpers import synthetic_batch  # noqa: E402
+from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, train_refiner  # noqa: E402
+from trioman.toolkit.refiner.sd_turbo import PROMPT_FILE, SdTurboFolderError, SdTurboRefiner, write_tiny_folder  # noqa: E402
+
+S = 32  # image side; the tiny folder's total downsampling is 4
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    return write_tiny_folder(tmp_path_factory.mktemp("sd_turbo") / "tiny")
+
+
+def config(folder: Path, **overrides) -> RefinerConfig:
+    return RefinerConfig(**{"image_size": S, "backbone": "sd-turbo", "pretrained_path": str(folder), **overrides})
+
+
+@pytest.mark.parametrize("conditions", ["none", "tex", "tex+geo"])
+def test_forward_shapes_and_views_interact(folder, conditions):
+    model = create_refiner(config(folder, conditions=conditions)).eval()
+    assert isinstance(model, SdTurboRefiner) and model.total_downsample == 4
+    g = torch.Generator().manual_seed(0)
+    x = [torch.rand(2, 3, S, S, generator=g) for _ in range(3)]
+    with torch.no_grad():
+        y = model(*x)
+        assert y.shape == (2, model.views, 3, S, S) and y.dtype == torch.float32
+        assert 0.0 <= y.min() and y.max() <= 1.0
+        # batch items stay independent
+        assert torch.allclose(model(*(t[:1] for t in x)), y[:1], atol=1e-5)
+        if model.views > 1:  # the coarse view's output depends on the reference: attention spans the views
+            other = model(x[0], torch.rand(2, 3, S, S, generator=g), x[2])
+            assert (other[:, 0] - y[:, 0]).abs().max() > 1e-4
+    with pytest.raises(ValueError, match="multiples of 4"):
+        model(*(t[..., :30] for t in x))
+
+
+def test_encoder_frozen_and_skips_start_small(folder):
+    model = create_refiner(config(folder))
+    assert not any(p.requires_grad for p in model.vae.encoder.parameters())
+    assert all(p.requires_grad for p in model.unet.parameters()) and all(p.requires_grad for p in model.vae.decoder.parameters())
+    assert all(torch.all(c.weight == 1e-5) for c in model.skip_convs)
+    assert "prompt_embeds" in model.state_dict()
+
+
+def test_training_steps_lower_the_loss(folder):
+    model = create_refiner(config(folder, conditions="tex"), seed=0)
+    batch = synthetic_batch(0, batch=2, size=S)
+    result = train_refiner(model, lambda step: batch, RefinerTrainConfig(steps=4, lr=1e-3))
+    assert result.skipped == 0 and result.losses[-1] < result.losses[0]
+
+
+def test_gradient_checkpointing_and_bf16_run_on_cpu(folder):
+    batch = synthetic_batch(0, batch=2, size=S)
+    plain = train_refiner(create_refiner(config(folder), seed=0), lambda s: batch, RefinerTrainConfig(steps=1))
+    ckpt = train_refiner(create_refiner(config(folder), seed=0), lambda s: batch,
+                         RefinerTrainConfig(steps=1, gradient_checkpointing=True))
+    assert ckpt.losses == pytest.approx(plain.losses, abs=1e-5)
+    bf16 = train_refiner(create_refiner(config(folder), seed=0), lambda s: batch, RefinerTrainConfig(steps=1, mixed_precision="bf16"))
+    assert bf16.losses == pytest.approx(plain.losses, abs=0.05)
+
+
+def test_save_then_load(folder, tmp_path):
+    model = create_refiner(config(folder), seed=0)
+    batch = synthetic_batch(0, batch=2, size=S)
+    result = train_refiner(model, lambda step: batch, RefinerTrainConfig(steps=2, lr=1e-3), run=tmp_path)
+    loaded = load_refiner(result.checkpoint)
+    with torch.no_grad():
+        assert torch.equal(loaded(batch.coarse, batch.reference, batch.normal), model(batch.coarse, batch.reference, batch.normal))
+    assert loaded.config == model.config
+
+
+@pytest.fixture(scope="module")
+def exported(folder, tmp_path_factory):
+    from trioman.export.onnx_models import export_refiner_onnx
+
+    model = create_refiner(config(folder), seed=0)
+    with torch.no_grad():  # move the decoder off its random start so the views' outputs are not saturated
+        for conv in model.skip_convs:
+            conv.weight.normal_(0.0, 0.05)
+    path = tmp_path_factory.mktemp("sd_turbo_onnx") / "refiner.onnx"
+    entry = export_refiner_onnx(model, path, size=S, gate_frames=2)
+    return path, entry
+
+
+def test_onnx_parity_and_contract(exported):
+    import onnx
+
+    from trioman.runtime.models import load_model
+
+    path, entry = exported
+    assert entry["status"] == "written" and entry["parity_max_abs"] <= 1e-3, entry["parity"]
+    proto = onnx.load(str(path))
+    assert proto.opset_import[0].version == 17
+    assert [d.dim_param for d in proto.graph.input[0].type.tensor_type.shape.dim][0] == "batch"
+    meta = {p.key: p.value for p in proto.metadata_props}
+    assert json.loads(meta["trioman.config"])["backbone"] == "sd-turbo" and meta["trioman.kind"] == "refiner"
+    assert [i.name for i in proto.graph.input] == ["coarse", "reference", "normal"]  # no prompt or timestep input
+    m = load_model(path, "refiner")
+    out = m.run(**{n: np.random.default_rng(0).random((3, 3, S, S), dtype=np.float32) for n in ("coarse", "reference", "normal")})
+    assert out.shape == (3, 3, 3, S, S)
+
+
+def test_augment_with_the_exported_model(exported, tiny_run, tmp_path):  # noqa: F811
+    from trioman.cli import main
+    from trioman.runtime.augment import augment
+    from trioman.runtime.formats import load_avatar, load_subject
+
+    avatar = tmp_path / "avatar"
+    assert main(["export", "avatar", str(tiny_run), "--out", str(avatar)]) == 0
+    subject = Path(load_avatar(avatar).meta["source"]["subject"])
+    augment(subject, avatar, exported[0], tmp_path / "aug", None, frames="all", limit=2, seed=0, progress=False)
+    assert load_subject(tmp_path / "aug").num_frames >= 2
+
+
+PARTS = {  # what is removed -> what the message names
+    "model_index.json": "model_index.json",
+    "vae": "vae",
+    "vae/config.json": "vae/config.json",
+    "vae/diffusion_pytorch_model.safetensors": "vae/diffusion_pytorch_model.safetensors",
+    "unet": "unet",
+    "unet/diffusion_pytorch_model.safetensors": "unet/diffusion_pytorch_model.safetensors",
+    "scheduler": "scheduler/scheduler_config.json",
+    PROMPT_FILE: "tokenizer",
+}
+
+
+@pytest.mark.parametrize("part", sorted(PARTS))
+def test_missing_part_is_one_line_naming_it(folder, tmp_path, part):
+    root = tmp_path / "copy"
+    shutil.copytree(folder, root)
+    target = root / part
+    shutil.rmtree(target) if target.is_dir() else target.unlink()
+    with pytest.raises(SdTurboFolderError) as err:
+        create_refiner(config(root))
+    message = str(err.value)
+    assert "\n" not in message and str(root / PARTS[part]) in message
+
+
+def test_no_folder_says_so(tmp_path):
+    with pytest.raises(SdTurboFolderError, match="pretrained_path"):
+        create_refiner(RefinerConfig(image_size=S, backbone="sd-turbo"))
+    with pytest.raises(SdTurboFolderError, match="not a folder"):
+        create_refiner(RefinerConfig(image_size=S, backbone="sd-turbo", pretrained_path=str(tmp_path / "nope")))
