@@ -133,20 +133,25 @@ def _previous(run: Path, steps: int) -> dict | None:
 
 
 def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, conditions: str = "tex+geo", fit: FitConfig = FitConfig(),
-                refiner_size: str = "compact", model_cfg: RefinerConfig | None = None, lpips=None) -> tuple[torch.nn.Module, dict]:
+                refiner_size: str = "compact", model_cfg: RefinerConfig | None = None, lpips=None, *, backbone: str = "scratch",
+                pretrained: str | None = None, device: str = "cpu", mixed_precision: str = "no",
+                gradient_checkpointing: bool = False) -> tuple[torch.nn.Module, dict]:
     """Train a Refiner with ``conditions`` on the corpus's training subjects (or a list of triplet
-    files) into ``run``. -> (model, info)."""
+    files) into ``run`` on ``device``. -> (model, info). ``backbone`` "sd-turbo" builds on the local
+    diffusers folder ``pretrained`` (``refiner_size`` then does not apply); ``mixed_precision`` and
+    ``gradient_checkpointing`` are RefinerTrainConfig's."""
     run = Path(run)
     previous = _previous(run, fit.steps)
     data, draw = _sampler(corpus, fit)
     size = fit.crop or data.gt.shape[1]
-    cfg = model_cfg or RefinerConfig(image_size=size, conditions=conditions, **REFINER_SIZES[refiner_size])
+    widths = REFINER_SIZES[refiner_size] if backbone == "scratch" else {}
+    cfg = model_cfg or RefinerConfig(image_size=size, conditions=conditions, backbone=backbone, pretrained_path=pretrained, **widths)
     torch.manual_seed(fit.seed)
-    model = create_refiner(cfg, seed=fit.seed)
+    model = create_refiner(cfg, seed=fit.seed).to(device)
     t = time.perf_counter() - _earlier_seconds(run, asdict(fit))
-    result = train_refiner(model, lambda step: refiner_batch(draw()), RefinerTrainConfig(steps=fit.steps, lr=fit.lr),
-                           run=run, lpips=lpips, progress=True)
-    info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(),
+    train_cfg = RefinerTrainConfig(steps=fit.steps, lr=fit.lr, mixed_precision=mixed_precision, gradient_checkpointing=gradient_checkpointing)
+    result = train_refiner(model, lambda step: refiner_batch(draw()), train_cfg, run=run, lpips=lpips, progress=True)
+    info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(), "device": device,
             "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
             "skipped_steps": result.skipped, "checkpoint": str(result.checkpoint)}
     return model, _finish(run, info, previous)

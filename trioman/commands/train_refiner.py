@@ -16,6 +16,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", choices=("compact", "default"), default="compact", help="Refiner widths")
     parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all", help="corpus variant")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--backbone", choices=("scratch", "sd-turbo"), default="scratch",
+                        help="sd-turbo: the paper's SD-Turbo backbone from --pretrained DIR (needs trioman[diffusion])")
+    parser.add_argument("--pretrained", metavar="DIR", help="local SD-Turbo folder in diffusers layout (never downloaded)")
+    parser.add_argument("--device", default="cpu", help="torch device, e.g. cuda (default cpu)")
+    parser.add_argument("--mixed-precision", choices=("no", "bf16"), default="no", help="bf16 autocast (CUDA)")
+    parser.add_argument("--gradient-checkpointing", action="store_true", help="recompute activations (sd-turbo)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -23,7 +29,9 @@ def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.lpips import load_lpips_or_say_why
 
     fit = FitConfig(steps=args.steps, batch=args.batch, crop=args.crop, seed=args.seed, baseline_frames=args.baseline_frames)
-    _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=load_lpips_or_say_why("train-refiner"))
+    _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=load_lpips_or_say_why("train-refiner"),
+                          backbone=args.backbone, pretrained=args.pretrained, device=args.device,
+                          mixed_precision=args.mixed_precision, gradient_checkpointing=args.gradient_checkpointing)
     print(f"train-refiner: {info['checkpoint']} ({args.conditions}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
           f"final loss {info['final_loss']:.4f})")
     return 0

@@ -16,6 +16,7 @@ import torch
 pytest.importorskip("diffusers", reason="the sd-turbo backbone needs the diffusers package (pip install 'trioman[diffusion]')")
 
 from tests.export.test_avatar import tiny_run  # noqa: E402,F401 (fixture)
+from tests.toolkit.test_model_training import corpus  # noqa: E402,F401 (fixture)
 from tests.toolkit.refiner.helpers import synthetic_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, train_refiner  # noqa: E402
 from trioman.toolkit.refiner.sd_turbo import PROMPT_FILE, SdTurboFolderError, SdTurboRefiner, write_tiny_folder  # noqa: E402
@@ -158,3 +159,16 @@ def test_no_folder_says_so(tmp_path):
         create_refiner(RefinerConfig(image_size=S, backbone="sd-turbo"))
     with pytest.raises(SdTurboFolderError, match="not a folder"):
         create_refiner(RefinerConfig(image_size=S, backbone="sd-turbo", pretrained_path=str(tmp_path / "nope")))
+
+
+def test_train_refiner_and_export_commands(folder, corpus, tmp_path):  # noqa: F811
+    from trioman.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train-refiner", "--corpus", str(corpus), "--out", str(run), "--steps", "2", "--batch", "2", "--crop", "32",
+                 "--backbone", "sd-turbo", "--pretrained", str(folder), "--gradient-checkpointing"]) == 0
+    info = json.loads((run / "fit.json").read_text())
+    assert info["config"]["backbone"] == "sd-turbo" and info["config"]["pretrained_path"] == str(folder)
+    assert main(["export", "onnx", "--refiner", str(run), "--out", str(tmp_path / "onnx"), "--variants", "fp32"]) == 0
+    report = json.loads((tmp_path / "onnx" / "export.json").read_text())
+    assert report["files"]["refiner.onnx"]["parity_max_abs"] <= 1e-3
