@@ -66,6 +66,7 @@ EXPORTER = "torch.onnx.export, TorchScript (legacy) exporter, dynamo=False"
 TRACE_BATCH = 2  # trace with batch >= 2 (a traced size-1 batch may be specialised)
 PARITY_BATCHES = (1, 3)  # other batch sizes than the traced one
 BATCH_AXIS = "batch"
+MAX_PROTO_BYTES = 2**31 - 2**24  # one serialised ONNX protobuf is below 2 GiB; keep 16 MiB for the graph itself
 REFINER_ATOL = 1e-3  # max |onnxruntime - torch| on refined images (docs/design.md, Deployment)
 EXAMINER_ATOL = 1e-4  # on Examiner scores
 INT8_MAX_PSNR_DROP_DB = 0.3  # Refiner int8 gate: refined-vs-GT PSNR within this of fp32's
@@ -477,6 +478,10 @@ class _Job:
 
     def export_fp32(self, path: Path) -> dict:
         t0 = time.perf_counter()
+        size = sum(t.numel() * t.element_size() for t in self.model.state_dict().values())
+        if size >= MAX_PROTO_BYTES:
+            raise ExportError(f"{self.kind}: {size / 2**30:.2f} GiB of weights exceed protobuf's 2 GiB limit on one ONNX file; "
+                              f"the external-data layout is not written by this exporter (docs/formats.md, 'ONNX models')")
         H, W = self.size
         g = torch.Generator().manual_seed(self.seed)
         example = tuple(torch.rand((TRACE_BATCH, 3, H, W), generator=g) for _ in self.inputs)

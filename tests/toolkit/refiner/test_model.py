@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 
 import pytest
 import torch
@@ -9,6 +10,7 @@ import torch
 from tests.toolkit.refiner.helpers import open_zero_inits, tiny_config
 from trioman.toolkit.refiner import (
     CONDITIONS,
+    BackboneUnavailable,
     RefinerConfig,
     create_refiner,
     export_inputs,
@@ -164,3 +166,10 @@ def test_backbone_registry():
         create_refiner(tiny_config(backbone="nope"))
     with pytest.raises(ValueError, match="already registered"):
         register_backbone("scratch")(lambda config, exportable: None)
+
+
+def test_sd_turbo_without_diffusers_names_the_extra(monkeypatch):
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "diffusers" else find_spec(name, *a))
+    with pytest.raises(BackboneUnavailable, match=r"trioman\[diffusion\]"):
+        create_refiner(tiny_config(backbone="sd-turbo", pretrained_path="/nowhere"))

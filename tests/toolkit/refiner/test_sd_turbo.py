@@ -172,3 +172,12 @@ def test_train_refiner_and_export_commands(folder, corpus, tmp_path):  # noqa: F
     assert main(["export", "onnx", "--refiner", str(run), "--out", str(tmp_path / "onnx"), "--variants", "fp32"]) == 0
     report = json.loads((tmp_path / "onnx" / "export.json").read_text())
     assert report["files"]["refiner.onnx"]["parity_max_abs"] <= 1e-3
+
+
+def test_export_over_the_protobuf_limit_says_so(folder, tmp_path, monkeypatch):
+    from trioman.export import onnx_models
+
+    monkeypatch.setattr(onnx_models, "MAX_PROTO_BYTES", 1000)  # stands in for SD-Turbo's 3.8 GB of fp32 weights
+    with pytest.raises(onnx_models.ExportError, match="exceed protobuf's 2 GiB limit"):
+        onnx_models.export_refiner_onnx(create_refiner(config(folder)), tmp_path / "r.onnx", size=S, gate_frames=2)
+    assert not (tmp_path / "r.onnx").exists()
