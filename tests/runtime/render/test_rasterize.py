@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tests.conftest import run_python
-from tests.toolkit.render.scenes import extreme_scene, orbit_viewmat, random_scene
+from trioman.bench.scenes import extreme_scene, orbit_viewmat, random_scene
 from trioman.runtime.render import RenderOutput, rasterize
 from trioman.runtime.render._reference import rasterize_reference
 

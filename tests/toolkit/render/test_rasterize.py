@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from trioman.runtime.render._reference import project_reference, rasterize_reference  # noqa: E402
-from tests.toolkit.render.scenes import extreme_scene, orbit_viewmat, random_scene  # noqa: E402
+from trioman.bench.scenes import extreme_scene, orbit_viewmat, random_scene  # noqa: E402
 from trioman.toolkit.render import RenderOutput, project_gaussians, rasterize  # noqa: E402
 
 TOL = 1e-5

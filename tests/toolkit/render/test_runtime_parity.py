@@ -7,7 +7,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tests.toolkit.render.scenes import extreme_scene, orbit_viewmat, random_scene  # noqa: E402
+from trioman.bench.scenes import extreme_scene, orbit_viewmat, random_scene  # noqa: E402
 from trioman.runtime.render import rasterize as rasterize_numpy  # noqa: E402
 from trioman.toolkit.render import rasterize as rasterize_torch  # noqa: E402
 

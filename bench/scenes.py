@@ -1,4 +1,4 @@
-"""Scene generators shared by the renderer tests (numpy only: usable without torch)."""
+"""Scene generators of the renderer tests and the stability benchmark (numpy only: usable without torch)."""
 
 from __future__ import annotations
 
