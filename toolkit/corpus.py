@@ -48,7 +48,7 @@ class CorpusConfig:
         return [(f"s{i:02d}", "train" if i < self.train_subjects else "heldout") for i in range(n)]
 
 
-def _finished(run: Path, iterations: int) -> bool:
+def finished(run: Path, iterations: int) -> bool:
     from trioman.toolkit.train.checkpoint import latest_checkpoint
 
     ckpt = latest_checkpoint(run) if (run / "config.json").exists() else None
@@ -87,7 +87,7 @@ def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True) -> 
             synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames), subject, progress=progress)
         variant = cfg.baseline_frames if role == "train" else "heldout"
         run = root / "runs" / variant / name
-        if not _finished(run, cfg.iterations):
+        if not finished(run, cfg.iterations):
             frames = {"frames": "all"} if role == "train" else {}
             if role == "train" and cfg.baseline_frames == "subset":
                 frames["frame_stride"] = cfg.subset_stride

@@ -29,7 +29,7 @@ class Command:
 
 # Order is the order shown by ``trioman --help``.
 COMMANDS = (
-    Command("demo", "trioman.toolkit.demo", "run the whole pipeline on the embedded synthetic subject", "train"),
+    Command("demo", "trioman.commands.demo", "run the whole pipeline on the embedded synthetic subject", "train"),
     Command("synth", "trioman.commands.synth", "render a synthetic subject (monocular video + poses + cameras)", "train"),
     Command("train", "trioman.commands.train", "train a Gaussian avatar on a subject", "train"),
     Command("eval", "trioman.commands.eval", "evaluate a trained avatar: metrics, grid, video", "train"),
@@ -43,7 +43,7 @@ COMMANDS = (
     Command("render", "trioman.commands.render", "render one image of an exported avatar (no torch)"),
     Command("augment", "trioman.commands.augment", "pseudo-GT frames: Generator, Refiner, Examiner on an exported avatar (no torch)"),
     Command("inspect", "trioman.commands.inspect", "validate a subject folder and print a summary"),
-    Command("bench", "trioman.toolkit.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
+    Command("bench", "trioman.commands.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )
 
 # The packages each extra brings, by import name: checked before a command of that extra runs.

@@ -11,7 +11,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from trioman.cli import main  # noqa: E402
-from trioman.toolkit.bench_models import bench_models, models_markdown  # noqa: E402
+from trioman.bench.models import bench_models, models_markdown  # noqa: E402
 from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
 from trioman.toolkit.model_training import FitConfig, random_crop  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402

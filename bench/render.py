@@ -4,12 +4,14 @@ run, plus the cost of Gaussians the view does not need (off screen, behind the c
 
 from __future__ import annotations
 
+import argparse
 import time
 import tracemalloc
 
 import numpy as np
 import torch
 
+from trioman.bench.common import best_time, machine, peak_rss_mib
 from trioman.runtime.render import rasterize as rasterize_numpy
 from trioman.runtime.render._reference import rasterize_reference
 from trioman.toolkit.render import rasterize as rasterize_torch
@@ -65,18 +67,8 @@ def with_unneeded_extras(scene: dict, factor: int = 10, seed: int = 0) -> dict:
     return dict(scene, **{k: np.concatenate([scene[k], extra[k].astype(np.float32)]) for k in KEYS})
 
 
-def _best(fn, repeats: int) -> float:
-    """Seconds of the fastest of ``repeats`` calls (after one warm-up)."""
-    fn()
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
-
-
-def _args(scene: dict, size: int) -> list:
+def scene_args(scene: dict, size: int) -> list:
+    """The rasterize arguments of ``scene`` at ``size`` x ``size`` (K rescaled)."""
     K = scene["K"].copy()
     K[:2] *= size / (2 * K[0, 2])
     return [scene[k] for k in KEYS] + [scene["viewmat"], K.astype(np.float32), size, size]
@@ -90,12 +82,12 @@ def bench_renderers(scene: dict, sizes=(256, 512), repeats: int = 7, oracle_size
     for size in sizes:
         row = {"size": size, "gaussians": len(scene["means"])}
         for name, sc in (("", scene), ("extra_", extras)):
-            a = _args(sc, size)
+            a = scene_args(sc, size)
             ta = [torch.from_numpy(np.asarray(x)) if isinstance(x, np.ndarray) else x for x in a]
-            row[f"{name}numpy_s"] = _best(lambda: rasterize_numpy(*a, background=bg), repeats)
+            row[f"{name}numpy_s"] = best_time(lambda: rasterize_numpy(*a, background=bg), repeats)
             with torch.no_grad():
-                row[f"{name}torch_s"] = _best(lambda: rasterize_torch(*ta, background=torch.from_numpy(bg)), repeats)
-        a = _args(scene, size)
+                row[f"{name}torch_s"] = best_time(lambda: rasterize_torch(*ta, background=torch.from_numpy(bg)), repeats)
+        a = scene_args(scene, size)
         out = rasterize_numpy(*a, background=bg)
         with torch.no_grad():
             ref = rasterize_torch(*(torch.from_numpy(np.asarray(x)) if isinstance(x, np.ndarray) else x for x in a),
@@ -105,15 +97,54 @@ def bench_renderers(scene: dict, sizes=(256, 512), repeats: int = 7, oracle_size
         row["coverage"] = float((out.alpha > 0.5).mean())
         for name, sc in (("", scene), ("extra_", extras)):
             tracemalloc.start()
-            rasterize_numpy(*_args(sc, size), background=bg)
+            rasterize_numpy(*scene_args(sc, size), background=bg)
             row[f"{name}numpy_tracemalloc_peak_mib"] = tracemalloc.get_traced_memory()[1] / 2**20
             tracemalloc.stop()
         rows.append(row)
     report = {"source": scene["source"], "rows": rows}
     if oracle_size:  # one call: seconds per frame at a small size, numpy timed at the same size
-        a = _args(scene, oracle_size)
+        a = scene_args(scene, oracle_size)
         t = time.perf_counter()
         rasterize_reference(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)
         report["oracle"] = {"size": oracle_size, "oracle_s": time.perf_counter() - t,
-                            "numpy_s": _best(lambda: rasterize_numpy(*a, background=bg), repeats)}
+                            "numpy_s": best_time(lambda: rasterize_numpy(*a, background=bg), repeats)}
     return report
+
+
+def bench_render(args: argparse.Namespace) -> dict:
+    """The report of ``trioman bench render`` (--avatar-run, else the untrained default avatar)."""
+    report = {"target": "render", "machine": machine(), "torch_threads": torch.get_num_threads()}
+    report.update(bench_renderers(avatar_scene(args.avatar_run)))
+    report["peak_rss_mib"] = round(peak_rss_mib(), 1)
+    return report
+
+
+def render_markdown(r: dict) -> str:
+    lines = [f"# trioman bench render ({r['source']})", "",
+             f"Machine: {r['machine']}; torch uses {r['torch_threads']} threads, numpy one (BLAS may use more). "
+             "Best of 7 calls each, measured side by side in this run. numpy: `trioman.runtime.render.rasterize`; "
+             "torch: `trioman.toolkit.render.rasterize` forward under `torch.no_grad()`.", "",
+             "| size | Gaussians | numpy fps (ms) | torch fwd fps (ms) | numpy speed / torch | "
+             "max abs diff rgb / alpha / depth |",
+             "|---|---|---|---|---|---|"]
+    for row in r["rows"]:
+        lines.append(f"| {row['size']} | {row['gaussians']} | {1 / row['numpy_s']:.1f} ({1e3 * row['numpy_s']:.1f}) | "
+                     f"{1 / row['torch_s']:.1f} ({1e3 * row['torch_s']:.1f}) | {row['torch_s'] / row['numpy_s']:.2f}x | "
+                     f"{row['max_abs_diff_rgb']:.1e} / {row['max_abs_diff_alpha']:.1e} / {row['max_abs_diff_depth']:.1e} |")
+    lines += ["", "With 10x as many extra Gaussians, half behind the camera and half beside the view "
+              "(target for numpy: <= 1.3x the time):", "",
+              "| size | Gaussians | numpy ms (x without) | torch ms (x without) |", "|---|---|---|---|"]
+    for row in r["rows"]:
+        n = 11 * row["gaussians"]
+        lines.append(f"| {row['size']} | {n} | {1e3 * row['extra_numpy_s']:.1f} ({row['extra_numpy_s'] / row['numpy_s']:.2f}x) | "
+                     f"{1e3 * row['extra_torch_s']:.1f} ({row['extra_torch_s'] / row['torch_s']:.2f}x) |")
+    lines += ["", "Memory: tracemalloc peak of one numpy render call "
+              + ", ".join(f"{row['size']}: {row['numpy_tracemalloc_peak_mib']:.1f} MiB "
+                          f"({row['extra_numpy_tracemalloc_peak_mib']:.1f} MiB with the extras)" for row in r["rows"])
+              + f"; peak resident memory of the whole benchmark process {r['peak_rss_mib']} MiB.", ""]
+    if "oracle" in r:
+        o = r["oracle"]
+        lines += [f"Brute-force oracle (trioman.runtime.render._reference, float64, every Gaussian at every pixel), "
+                  f"one call at {o['size']}x{o['size']}: {o['oracle_s']:.1f} s against {1e3 * o['numpy_s']:.1f} ms for numpy "
+                  f"({o['oracle_s'] / o['numpy_s']:.0f}x).", ""]
+    return "\n".join(lines)

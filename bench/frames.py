@@ -1,17 +1,16 @@
-"""Peak memory of training on a real-capture-sized subject (a benchmark, not a test).
+"""``trioman bench frames``: peak memory of training on a real-capture-sized subject.
 
-    python -m trioman.toolkit.bench_frames --out DIR [--frames 1500] [--size 1024] [--iterations 20]
+    trioman bench frames --out DIR [--frames 1500] [--size 1024] [--iterations 20]
 
 Writes a generated subject of that size (a ~10k-vertex ellipsoid body, one joint, a textured disc per
 frame; frames made one at a time), then trains on it in this process and prints the wall time and the
-peak resident memory (VmHWM) of each stage. Issue 14's budget: at most 4 GB for 1,500 frames at
-1024 x 1024.
+peak resident memory (VmHWM) of each stage; a subject already in DIR/subject is reused. Issue 14's budget:
+at most 4 GB for 1,500 frames at 1024 x 1024.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -53,36 +52,34 @@ def write_subject(out: Path, frames: int, size: int, seed: int = 0) -> None:
     save_subject(out, body=body, poses=np.zeros((frames, 1, 3)), trans=np.zeros((frames, 3)), K=K, viewmat=view,
                  split=["train"] * frames, sequence=["orbit"] * frames, images=images(),
                  masks=(mask for _ in range(frames)), width=size, height=size, body_model="ellipsoid",
-                 generator={"tool": "trioman.toolkit.bench_frames", "seed": seed})
+                 generator={"tool": "trioman.bench.frames", "seed": seed})
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
-    parser.add_argument("--frames", type=int, default=1500)
-    parser.add_argument("--size", type=int, default=1024)
-    parser.add_argument("--iterations", type=int, default=20)
-    args = parser.parse_args(argv)
+def bench_frames(args: argparse.Namespace) -> dict:
+    """The report of ``trioman bench frames`` (``args.frames`` default 1500, ``args.iterations`` default 20)."""
+    from trioman.bench.common import machine
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
 
+    frames, iterations = args.frames or 1500, args.iterations or 20
     out = Path(args.out)
     stages = StageLog(say=lambda line: print(f"bench frames: {line}"))
     subject = out / "subject"
     if not subject.exists():
         with stages.stage("write subject"):
-            write_subject(subject, args.frames, args.size)
+            write_subject(subject, frames, args.size)
     with stages.stage("train"):
-        train(subject, out / "run", preset("quick", iterations=args.iterations, checkpoint_every=args.iterations),
+        train(subject, out / "run", preset("quick", iterations=iterations, checkpoint_every=iterations),
               progress=False)
-    result = {"frames": args.frames, "size": args.size, "iterations": args.iterations,
-              "stages": {s.name: {"seconds": round(s.seconds, 1), "peak_rss_mib": round(mib(s.peak_rss), 1)}
-                         for s in stages.stages},
-              "process_peak_rss_mib": round(mib(peak_rss_bytes()), 1)}
-    (out / "bench_frames.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result))
-    return 0
+    return {"target": "frames", "machine": machine(), "frames": frames, "size": args.size, "iterations": iterations,
+            "stages": {s.name: {"seconds": round(s.seconds, 1), "peak_rss_mib": round(mib(s.peak_rss), 1)}
+                       for s in stages.stages},
+            "process_peak_rss_mib": round(mib(peak_rss_bytes()), 1)}
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def frames_markdown(r: dict) -> str:
+    lines = [f"# trioman bench frames ({r['frames']} frames at {r['size']}x{r['size']}, {r['iterations']} iterations)", "",
+             f"Machine: {r['machine']}.", "", "| stage | seconds | peak RSS (MiB) |", "|---|---|---|"]
+    lines += [f"| {name} | {s['seconds']} | {s['peak_rss_mib']} |" for name, s in r["stages"].items()]
+    lines += ["", f"Peak resident memory of the whole benchmark process: {r['process_peak_rss_mib']} MiB.", ""]
+    return "\n".join(lines)

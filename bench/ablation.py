@@ -95,11 +95,11 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
 
 
 def _train_and_evaluate(subject: Path, run: Path, cfg, lpips) -> dict:
-    from trioman.toolkit.corpus import _finished
+    from trioman.toolkit.corpus import finished
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.train.loop import AUGMENT_JSON, train
 
-    if not _finished(run, cfg.iterations):
+    if not finished(run, cfg.iterations):
         train(subject, run, cfg, resume=(run / "config.json").exists(), progress=False, lpips=lpips)
     summary_file = run / "eval_test" / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
@@ -131,7 +131,7 @@ def _models(corpus: Path, out: Path, args: argparse.Namespace) -> tuple[dict[str
 def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
     """Masked PSNR of tex+geo refinement on held-out test triplets with the true conditions, another
     subject's reference frame, and a zero normal map (a Refiner that uses a condition loses PSNR)."""
-    from trioman.toolkit.bench_models import _batched, _metrics
+    from trioman.bench.common import batched, mean_metrics
     from trioman.toolkit.model_training import nchw, refiner_batch
     from trioman.toolkit.refiner import load_refiner, refiner_inputs
     from trioman.toolkit.train.checkpoint import latest_checkpoint
@@ -144,11 +144,11 @@ def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
     other = torch.roll(tb.reference, shifts=len(tb.reference) // len(heldout), dims=0)  # another subject's frame
 
     def psnr(reference: torch.Tensor, normal: torch.Tensor) -> float:
-        out = _batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), "tex+geo"))[:, 0],
+        out = batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), "tex+geo"))[:, 0],
                        tb.coarse, reference, normal)
-        return _metrics(out, tb.target, mask)["psnr"]
+        return mean_metrics(out, tb.target, mask)["psnr"]
 
-    return {"coarse": _metrics(tb.coarse, tb.target, mask)["psnr"], "true": psnr(tb.reference, tb.normal),
+    return {"coarse": mean_metrics(tb.coarse, tb.target, mask)["psnr"], "true": psnr(tb.reference, tb.normal),
             "other_subject_reference": psnr(other, tb.normal), "zero_normal": psnr(tb.reference, torch.zeros_like(tb.normal))}
 
 

@@ -4,13 +4,13 @@ implementation (every visible Gaussian at every pixel) and the float64 brute-for
 
 from __future__ import annotations
 
-import time
 from functools import partial
 
 import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint
 
+from trioman.bench.common import mean_time
 from trioman.runtime.render._reference import rasterize_reference
 from trioman.runtime.render.projection import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
 from trioman.toolkit.cpu import flush_denormals
@@ -45,14 +45,6 @@ def dense_rasterize(means, quats, scales, opacities, colors, viewmat, K, width, 
     return torch.cat(out).reshape(height, width, 3)
 
 
-def _time(fn, repeats: int) -> float:
-    fn()  # warm-up
-    t = time.perf_counter()
-    for _ in range(repeats):
-        fn()
-    return (time.perf_counter() - t) / repeats
-
-
 @flush_denormals()
 def bench_rasterizer(gaussians, viewmat: torch.Tensor, K: torch.Tensor, sizes=(128, 256), repeats: int = 5,
                      oracle_max_pixels: int = 128 * 128) -> list[dict]:
@@ -76,12 +68,12 @@ def bench_rasterizer(gaussians, viewmat: torch.Tensor, K: torch.Tensor, sizes=(1
         args = (*leaves, viewmat, k, size, size, torch.ones(3))
         slow = max(1, repeats // 2)
         row = {"size": size, "gaussians": int(leaves[0].shape[0]),
-               "tiled_fwd_s": _time(partial(fwd, tiled, args), repeats),
-               "tiled_fwd_bwd_s": _time(partial(fwd_bwd, tiled, args), repeats),
-               "dense_fwd_s": _time(partial(fwd, dense_rasterize, args), slow),
-               "dense_fwd_bwd_s": _time(partial(fwd_bwd, dense_rasterize, args), slow)}
+               "tiled_fwd_s": mean_time(partial(fwd, tiled, args), repeats),
+               "tiled_fwd_bwd_s": mean_time(partial(fwd_bwd, tiled, args), repeats),
+               "dense_fwd_s": mean_time(partial(fwd, dense_rasterize, args), slow),
+               "dense_fwd_bwd_s": mean_time(partial(fwd_bwd, dense_rasterize, args), slow)}
         if size * size <= oracle_max_pixels:
             arrays = [t.detach().double().numpy() for t in (*leaves, viewmat, k)]
-            row["oracle_fwd_s"] = _time(partial(rasterize_reference, *arrays, size, size, np.ones(3)), 1)
+            row["oracle_fwd_s"] = mean_time(partial(rasterize_reference, *arrays, size, size, np.ones(3)), 1)
         rows.append(row)
     return rows

@@ -10,7 +10,7 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.toolkit.bench_ablation import VARIANTS, AblationPlan, summarise  # noqa: E402
+from trioman.bench.ablation import VARIANTS, AblationPlan, summarise  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
 

@@ -16,11 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from trioman.bench.common import machine, peak_rss_mib
+
 HOLE_SIZE = 512  # animate's default output side
 HOLE_ALPHA = 0.5
 
 
-def bench_train(args: argparse.Namespace, out: Path) -> dict:
+def train_presets(args: argparse.Namespace, out: Path) -> dict:
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
@@ -125,3 +127,67 @@ def plot_curves(results: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def bench_train(args: argparse.Namespace) -> dict:
+    """The report of ``trioman bench train``: the presets' curves (unless --no-training) and the rasterizer timings."""
+    import numpy as np
+    import torch
+
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.avatar.model import GaussianAvatar
+    from trioman.bench.raster import bench_rasterizer
+    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
+    from trioman.toolkit.train.config import preset
+
+    out = Path(args.out)
+    subject_dir = out / "subject"
+    if not (subject_dir / "subject.json").exists():
+        synthesize_subject(SynthConfig(seed=args.seed, size=args.size, frames=args.frames or 120), subject_dir, overwrite=True)
+    report = {"target": "train", "machine": machine(), "size": args.size}
+    if not args.no_training:
+        report["presets"] = train_presets(args, out)
+        plot_curves(report["presets"], out / "train_psnr_vs_time.png")
+    subject = load_subject(subject_dir)
+    model = GaussianAvatar(subject.body, preset("quick").avatar)
+    i = int(subject.indices("train")[0])
+    with torch.no_grad():
+        g = model(torch.from_numpy(np.array(subject.poses[i])), torch.from_numpy(np.array(subject.trans[i]))).refined
+    report["rasterizer"] = bench_rasterizer(g, torch.from_numpy(np.array(subject.viewmat[i])),
+                                            torch.from_numpy(np.array(subject.K[i])), sizes=(args.size // 2, args.size))
+    report["peak_rss_mib"] = round(peak_rss_mib(), 1)
+    return report
+
+
+def train_markdown(r: dict) -> str:
+    lines = [f"# trioman bench train ({r['size']}x{r['size']} subject)", "", f"Machine: {r['machine']}.", ""]
+    if "presets" in r:
+        lines += ["## Avatar quality against training time", "",
+                  "PSNR/SSIM under ExAvatar's masked protocol (GT mask, white background). Train = the training",
+                  "frames; test = novel poses from novel views. Training time excludes the evaluations.", "",
+                  "| preset | Gaussians | iterations | train time | train PSNR | train SSIM | test PSNR (best on the way) | "
+                  "test SSIM | holes at 512 px |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for name, p in r["presets"].items():
+            lines.append(f"| {name} | {p['gaussians']} | {p['iterations']} | {p['train_seconds'] / 60:.1f} min | "
+                         f"{p['train_psnr']:.2f} | {p['train_ssim']:.4f} | {p['test_psnr']:.2f} ({p['best_test_psnr']:.2f}) | "
+                         f"{p['test_ssim']:.4f} | {100 * p['hole_fraction']:.2f}% |")
+        lines += ["", "Holes: the share of body pixels (GT mask upsampled to 512x512, eroded 4 px) that the avatar "
+                  "leaves below 0.5 opacity, over 4 test frames.", "",
+                  "Per checkpoint (iteration: train / test PSNR):", ""]
+        for name, p in r["presets"].items():
+            lines.append(f"- {name}: " + ", ".join(f"{c['step']}: {c['train_psnr']:.2f} / {c['test_psnr']:.2f}"
+                                                  for c in p["curve"]))
+        lines += ["", "![PSNR against iterations and training time](train_psnr_vs_time.png)", ""]
+        lines += [f"![{name} at 512 px: GT, render](render_{name}_512.png)" for name in r["presets"]] + [""]
+    lines += ["## Rasterizer (default avatar)", "",
+              "Seconds per call; ratios are the reference's time over the tiled rasterizer's, measured in this run.", "",
+              "| size | Gaussians | tiled fwd | tiled fwd+bwd | dense torch fwd (x) | dense fwd+bwd (x) | brute-force oracle fwd (x) |",
+              "|---|---|---|---|---|---|---|"]
+    for row in r["rasterizer"]:
+        oracle = f"{row['oracle_fwd_s']:.2f} ({row['oracle_fwd_s'] / row['tiled_fwd_s']:.0f}x)" if "oracle_fwd_s" in row else "not run"
+        lines.append(f"| {row['size']} | {row['gaussians']} | {row['tiled_fwd_s']:.3f} | {row['tiled_fwd_bwd_s']:.3f} | "
+                     f"{row['dense_fwd_s']:.3f} ({row['dense_fwd_s'] / row['tiled_fwd_s']:.1f}x) | "
+                     f"{row['dense_fwd_bwd_s']:.3f} ({row['dense_fwd_bwd_s'] / row['tiled_fwd_bwd_s']:.1f}x) | {oracle} |")
+    lines += ["", f"Peak resident memory of the whole benchmark process: {r['peak_rss_mib']} MiB.", ""]
+    return "\n".join(lines)

@@ -24,15 +24,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from trioman.bench.common import best_time
+from trioman.bench.render import avatar_scene, scene_args
 from trioman.runtime.metrics import psnr
 from trioman.runtime.render._reference import rasterize_reference
-from trioman.toolkit.bench_render import _args, _best, avatar_scene
 
 OPT_LEVELS = ("disable", "basic", "extended", "all")
 
 
 def _ms(fn, repeats: int) -> float:
-    return 1e3 * _best(fn, repeats)
+    return 1e3 * best_time(fn, repeats)
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -57,7 +58,7 @@ def bench_renderer_rows(scene: dict, size: int, repeats: int, oracle_size: int =
         return fn
 
     rows = []
-    a = _args(scene, size)
+    a = scene_args(scene, size)
     ref_fn = torch_render(a)
     ref = ref_fn()
     rows.append({"component": "renderer", "variant": f"torch fp32 tiled fwd ({size}px, reference)", "ms": _ms(ref_fn, repeats),
@@ -67,7 +68,7 @@ def bench_renderer_rows(scene: dict, size: int, repeats: int, oracle_size: int =
         rows.append({"component": "renderer", "variant": f"numpy tile {tile}, {extent} extent ({size}px)",
                      "ms": _ms(fn, repeats), "error": float(np.abs(fn() - ref).max())})
     if oracle_size:  # float64, every Gaussian at every pixel: one call, at a small size
-        a = _args(scene, oracle_size)
+        a = scene_args(scene, oracle_size)
         small_ref = torch_render(a)()
         t = time.perf_counter()
         out = rasterize_reference(*(np.asarray(x, np.float64) if isinstance(x, np.ndarray) else x for x in a), background=bg)

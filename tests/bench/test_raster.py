@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from trioman.toolkit.bench_raster import bench_rasterizer  # noqa: E402
+from trioman.bench.raster import bench_rasterizer  # noqa: E402
 
 
 def test_bench_rasterizer_times_every_implementation_with_the_oracle():

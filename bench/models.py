@@ -24,23 +24,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trioman.toolkit.bench_render import _best
+from trioman.bench.common import batched, best_time, mean_metrics
 from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
 from trioman.toolkit.examiner import auroc, pair_auroc
-from trioman.toolkit.metrics import evaluate_batch
 from trioman.toolkit.model_training import FitConfig, examiner_batch, fit_examiner, fit_refiner, nchw, refiner_batch
 from trioman.toolkit.refiner import CONDITIONS, refiner_inputs
 from trioman.toolkit.triplets import TripletSet
-
-
-@torch.no_grad()
-def _batched(fn, *arrays, batch: int = 8) -> torch.Tensor:
-    return torch.cat([fn(*(a[i:i + batch] for a in arrays)) for i in range(0, len(arrays[0]), batch)])
-
-
-def _metrics(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict[str, float]:
-    m = evaluate_batch(pred, gt, mask)
-    return {k: float(v.mean()) for k, v in m.items() if v is not None}
 
 
 def bench_models(args: argparse.Namespace) -> dict:
@@ -70,16 +59,16 @@ def bench_models(args: argparse.Namespace) -> dict:
     test = TripletSet.load(triplet_paths(corpus)["heldout"]).evaluation("test")
     tb = refiner_batch(test)
     gt, coarse, ref, mask = tb.target, tb.coarse, tb.reference, nchw(test.mask[..., None])
-    rows = {"coarse": _metrics(coarse, gt, mask)}
+    rows = {"coarse": mean_metrics(coarse, gt, mask)}
     refined = {}
     for key, model in refiners.items():
         cond = model.config.conditions
-        refined[key] = _batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), cond))[:, 0],
+        refined[key] = batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), cond))[:, 0],
                                 coarse, ref, tb.normal)
         label = cond if key in CONDITIONS else f"{cond}, baselines on a {key.rsplit('_', 1)[1]} of frames"
-        rows[f"refined ({label})"] = _metrics(refined[key], gt, mask)
+        rows[f"refined ({label})"] = mean_metrics(refined[key], gt, mask)
 
-    score = lambda cand: _batched(examiner, cand, ref).numpy()  # noqa: E731
+    score = lambda cand: batched(examiner, cand, ref).numpy()  # noqa: E731
     scores = {"GT": score(gt), "coarse": score(coarse), **{f"refined ({c})": score(refined[c]) for c in CONDITIONS}}
     labels = np.r_[np.ones(len(gt)), np.zeros(len(gt))]
     auc = auroc(torch.from_numpy(np.r_[scores["GT"], scores["coarse"]]), torch.from_numpy(labels))
@@ -88,8 +77,8 @@ def bench_models(args: argparse.Namespace) -> dict:
 
     one = refiner_batch(test._replace(**{k: getattr(test, k)[:1] for k in test._fields}))
     with torch.no_grad():
-        timing = {f"refiner_{c}_ms": 1000 * _best(lambda: refiners[c](*refiner_inputs(one, c)), 5) for c in CONDITIONS}
-        timing["examiner_ms"] = 1000 * _best(lambda: examiner(one.coarse, one.reference), 5)
+        timing = {f"refiner_{c}_ms": 1000 * best_time(lambda: refiners[c](*refiner_inputs(one, c)), 5) for c in CONDITIONS}
+        timing["examiner_ms"] = 1000 * best_time(lambda: examiner(one.coarse, one.reference), 5)
     figure = out / "examiner_scores.png"
     _density_plot(scores, figure)
     return {"corpus": str(corpus), "heldout_test_frames": len(gt), "size": int(gt.shape[-1]), "metrics": rows,

@@ -1,4 +1,4 @@
-"""``trioman demo``: the whole pipeline on the embedded synthetic subject.
+"""The demo (``trioman demo``): the whole pipeline on the embedded synthetic subject.
 
 synth -> train (quick preset) -> eval (test and train splits) -> export the avatar -> animate it with
 the runtime (numpy + onnxruntime, no torch), plus a turntable MP4 of the subject's posed mesh ->
@@ -13,7 +13,7 @@ with where the outputs are, baseline vs augmented test PSNR and the overall peak
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,20 +22,20 @@ if TYPE_CHECKING:
     from trioman.toolkit.train.config import TrainConfig
 
 
+@dataclass(frozen=True)
+class DemoConfig:
+    out: str | Path = "out/demo"
+    seed: int = 0  # subject seed
+    size: int = 256  # image side in pixels
+    frames: int = 120  # subject frames
+    iterations: int = 500  # training iterations of both avatars (quick preset otherwise)
+    model_steps: int = 200  # Refiner and Examiner training steps
+    augment_frames: int = 24  # source frames to augment
+    progress: bool = True
+
+
 # int8 calibration frames and parity / gate frames of the ONNX export (the command's default is 32 each)
 EXPORT_FRAMES = 16
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    parser.add_argument("--seed", type=int, default=0, help="subject seed (default 0)")
-    parser.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
-    parser.add_argument("--frames", type=int, default=120, help="subject frames (default 120)")
-    parser.add_argument("--iterations", type=int, default=500,
-                        help="training iterations of both avatars, quick preset otherwise (default 500)")
-    parser.add_argument("--model-steps", type=int, default=200, help="Refiner and Examiner training steps (default 200)")
-    parser.add_argument("--augment-frames", type=int, default=24, help="source frames to augment (default 24)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def say(line: str) -> None:
@@ -43,30 +43,30 @@ def say(line: str) -> None:
     print(f"demo: {line}", flush=True)
 
 
-def run(args: argparse.Namespace) -> int:
-    from trioman.toolkit.stages import StageLog, mib
+def run_demo(cfg: DemoConfig) -> None:
+    """The whole demo into ``cfg.out``, one line per stage, then the summary lines."""
     from trioman.toolkit.lpips import load_lpips_or_say_why
+    from trioman.toolkit.stages import StageLog, mib
 
-    out = Path(args.out)
-    progress = not args.quiet
+    out = Path(cfg.out)
+    progress = cfg.progress
     log = StageLog(say=say)
     lpips = load_lpips_or_say_why("demo")
-    base = _baseline(args, out, log, lpips, progress)
-    aug = _augment_stage(args, out, base["run"], base["avatar_dir"], log, progress)
-    final = _augmented_avatar(args, out, aug["out"], log, lpips, progress)
+    base = _baseline(cfg, out, log, lpips, progress)
+    aug = _augment_stage(cfg, out, base["run"], base["avatar_dir"], log, progress)
+    final = _augmented_avatar(cfg, out, aug["out"], log, lpips, progress)
     _report(base, aug, final)
     say(f"done in {log.seconds:.0f} s; peak RSS {mib(log.peak_rss):.0f} MiB (the highest stage)")
-    return 0
 
 
-def _quick_preset(args: argparse.Namespace, **overrides: Any) -> TrainConfig:
+def _quick_preset(cfg: DemoConfig, **overrides: Any) -> TrainConfig:
     """The quick training preset with the demo's ``--iterations``."""
     from trioman.toolkit.train.config import preset
 
-    return preset("quick", iterations=args.iterations, **overrides)
+    return preset("quick", iterations=cfg.iterations, **overrides)
 
 
-def _baseline(args: argparse.Namespace, out: Path, log: StageLog, lpips, progress: bool) -> dict:
+def _baseline(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
     """Subject, turntable, baseline avatar, its evaluation, export and animations."""
     import shutil
 
@@ -78,13 +78,13 @@ def _baseline(args: argparse.Namespace, out: Path, log: StageLog, lpips, progres
     from trioman.toolkit.synth.turntable import write_turntable
     from trioman.toolkit.train.loop import train
 
-    cfg = SynthConfig(seed=args.seed, size=args.size, frames=args.frames)
+    synth = SynthConfig(seed=cfg.seed, size=cfg.size, frames=cfg.frames)
     with log.stage("synth"):
-        subject = synthesize_subject(cfg, out / "subject", overwrite=True, progress=progress)
+        subject = synthesize_subject(synth, out / "subject", overwrite=True, progress=progress)
     with log.stage("turntable"):
-        video = write_turntable(cfg, out / "turntable.mp4", progress=progress)
+        video = write_turntable(synth, out / "turntable.mp4", progress=progress)
     shutil.rmtree(out / "run", ignore_errors=True)  # the demo always starts a fresh run
-    train_cfg = _quick_preset(args)
+    train_cfg = _quick_preset(cfg)
     with log.stage("train"):
         run_dir = train(subject.root, out / "run", train_cfg, progress=progress, lpips=lpips)
     with log.stage("eval test"):
@@ -96,13 +96,13 @@ def _baseline(args: argparse.Namespace, out: Path, log: StageLog, lpips, progres
         avatar, _ = export_avatar(run_dir, avatar_dir, overwrite=True)
     with log.stage("animate"):
         anims = {name: animate(avatar, motion_from_spec(name, avatar.skeleton), out / f"animate_{name}.mp4",
-                               camera=camera, size=args.size, progress=progress)
+                               camera=camera, size=cfg.size, progress=progress)
                  for name, camera in (("walk", "fixed"), ("wave", "orbit"))}
     return {"subject": subject, "turntable": video, "run": run_dir, "train_cfg": train_cfg, "test": test,
             "seen": seen, "avatar_dir": avatar_dir, "avatar": avatar, "anims": anims}
 
 
-def _augment_stage(args: argparse.Namespace, out: Path, run_dir: Path, avatar_dir: Path, log: StageLog,
+def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, log: StageLog,
                    progress: bool) -> dict:
     """Triplets of the trained avatar -> Refiner (tex+geo) and Examiner on the subject's training frames
     -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
@@ -116,26 +116,26 @@ def _augment_stage(args: argparse.Namespace, out: Path, run_dir: Path, avatar_di
     with log.stage("triplets"):
         triplets = build_triplets(run_dir, out / "triplets.npz", progress=progress)
     shutil.rmtree(out / "models", ignore_errors=True)  # fresh models, like the fresh avatar run
-    steps = args.model_steps
+    steps = cfg.model_steps
     with log.stage("refiner"):
         _, refiner = fit_refiner([triplets], out / "models" / "refiner", "tex+geo", FitConfig(steps=steps, split="train"))
     with log.stage("examiner"):
         _, examiner = fit_examiner([triplets], out / "models" / "examiner",
-                                   fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(args.size, 128),
+                                   fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(cfg.size, 128),
                                                  split="train"),
                                    validation_subjects=0)  # one subject: nothing to validate on
     onnx = out / "onnx"
     with log.stage("onnx export"):
         report = export_onnx(refiner=refiner["checkpoint"], examiner=examiner["checkpoint"], out=onnx,
-                             variants=("fp32", "int8"), calibration=[triplets], size=args.size, overwrite=True,
+                             variants=("fp32", "int8"), calibration=[triplets], size=cfg.size, overwrite=True,
                              calibration_frames=EXPORT_FRAMES, gate_frames=EXPORT_FRAMES)
     with log.stage("augment"):
         result = augment(out / "subject", avatar_dir, onnx / "refiner.onnx", out / "augmented",
-                         examiner=onnx / "examiner.onnx", limit=args.augment_frames, overwrite=True, progress=progress)
+                         examiner=onnx / "examiner.onnx", limit=cfg.augment_frames, overwrite=True, progress=progress)
     return {"onnx": onnx, "export": report, "out": out / "augmented", "result": result}
 
 
-def _augmented_avatar(args: argparse.Namespace, out: Path, extra: Path, log: StageLog, lpips,
+def _augmented_avatar(cfg: DemoConfig, out: Path, extra: Path, log: StageLog, lpips,
                       progress: bool) -> dict:
     """An avatar trained on the training frames plus the pseudo-GT frames, evaluated on the test split."""
     import shutil
@@ -145,9 +145,9 @@ def _augmented_avatar(args: argparse.Namespace, out: Path, extra: Path, log: Sta
 
     run_aug = out / "run_augmented"
     shutil.rmtree(run_aug, ignore_errors=True)
-    cfg = _quick_preset(args, extra_frames=str(extra.resolve()))
+    train_cfg = _quick_preset(cfg, extra_frames=str(extra.resolve()))
     with log.stage("train augmented"):
-        train(out / "subject", run_aug, cfg, progress=progress, lpips=lpips)
+        train(out / "subject", run_aug, train_cfg, progress=progress, lpips=lpips)
     with log.stage("eval augmented"):
         test = evaluate(run_aug, "test", lpips=lpips, progress=progress)
     return {"run": run_aug, "test": test}

@@ -1,0 +1,4 @@
+"""Benchmarks and the demo: the layer above export (it may import runtime, toolkit and export; nothing
+imports it but the commands). One module per ``trioman bench`` target (synth, train, render, models,
+deploy, ablation, frames), the raster timings the train target reports, ``demo`` (``trioman demo``),
+and ``common``: the machine line, timing, peak memory and the report files."""

@@ -1,0 +1,74 @@
+"""What every benchmark shares: the machine line, peak memory, timing, batched model calls and the
+report files (``TARGET.json`` and ``TARGET.md`` in the report folder). Timings are wall clock on the
+machine named in the report; nothing in trioman.bench is a timed test."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+
+def machine() -> str:
+    """'arch, N cores, Python X.Y.Z': the machine line of every report."""
+    import os
+    import platform
+
+    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process so far, MiB (ru_maxrss)."""
+    import resource
+    import sys
+
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss / (1024 * 1024) if sys.platform == "darwin" else rss / 1024
+
+
+def best_time(fn, repeats: int) -> float:
+    """Seconds of the fastest of ``repeats`` calls (after one warm-up)."""
+    fn()
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def mean_time(fn, repeats: int) -> float:
+    """Mean seconds of ``repeats`` calls (after one warm-up)."""
+    fn()
+    t = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    return (time.perf_counter() - t) / repeats
+
+
+def batched(fn, *arrays, batch: int = 8):
+    """``fn`` over the arrays' first axis in batches of ``batch``, without autograd; the outputs concatenated
+    (torch tensors)."""
+    import torch
+
+    with torch.no_grad():
+        return torch.cat([fn(*(a[i:i + batch] for a in arrays)) for i in range(0, len(arrays[0]), batch)])
+
+
+def mean_metrics(pred, gt, mask) -> dict[str, float]:
+    """toolkit.metrics.evaluate_batch's metrics (masked protocol) averaged over the batch, as floats."""
+    from trioman.toolkit.metrics import evaluate_batch
+
+    m = evaluate_batch(pred, gt, mask)
+    return {k: float(v.mean()) for k, v in m.items() if v is not None}
+
+
+def write_report(out: str | Path, target: str, report: dict, markdown: str) -> Path:
+    """Write ``out/target.json`` and ``out/target.md`` (atomic writes); -> the markdown's path."""
+    from trioman.runtime.image_io import atomic_write_text
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / f"{target}.json", json.dumps(report, indent=2) + "\n")
+    atomic_write_text(out / f"{target}.md", markdown)
+    return out / f"{target}.md"

@@ -1,0 +1,86 @@
+"""``trioman bench TARGET``: benchmarks that write a markdown table and JSON to a folder (trioman.bench).
+
+Targets: ``synth`` (time per stage and peak memory of synthesising a subject); ``train`` (avatar
+quality against training time per preset, and the rasterizer's speed against the brute-force and
+dense references); ``render`` (the numpy runtime renderer against the torch rasterizer's forward and
+the brute-force oracle, and the cost of Gaussians the view does not need); ``models`` (Refiner and
+Examiner trained on a synthetic corpus, evaluated on held-out subjects); ``deploy`` (error against run
+time of the renderer variants, the exported models per precision and optimisation level, and the
+augment loop's stages); ``ablation`` (the paper's Tables 1 and 2: avatars trained with and without
+online augmentation on held-out subjects); ``frames`` (peak memory of training on a generated
+real-capture-sized subject). Timings are wall clock on the machine named in the report; nothing here
+is a timed test. Module contract (trioman/cli.py): standard-library imports only at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+# target -> (module, report function, markdown function); each report function takes the parsed options
+TARGETS = {
+    "synth": ("trioman.bench.synth", "bench_synth", "synth_markdown"),
+    "train": ("trioman.bench.train", "bench_train", "train_markdown"),
+    "render": ("trioman.bench.render", "bench_render", "render_markdown"),
+    "models": ("trioman.bench.models", "bench_models", "models_markdown"),
+    "deploy": ("trioman.bench.deploy", "bench_deploy", "deploy_markdown"),
+    "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown"),
+    "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown"),
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("target", choices=tuple(TARGETS), help="what to benchmark")
+    parser.add_argument("--out", default="out/bench", help="report folder (default out/bench)")
+    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024)")
+    parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--presets", default="quick,full", help="train: presets to run, comma-separated")
+    parser.add_argument("--full-iterations", type=int, default=None, help="train: cap the full preset's iterations")
+    parser.add_argument("--eval-every", type=int, default=250, help="train: test evaluation interval (iterations)")
+    parser.add_argument("--no-training", action="store_true", help="train: only the rasterizer timings")
+    parser.add_argument("--avatar-run", default=None, metavar="RUN",
+                        help="render: a trained run folder (default: the untrained default avatar)")
+    parser.add_argument("--corpus", default="out/corpus", help="models: corpus folder, built when absent (default out/corpus)")
+    parser.add_argument("--subjects", type=int, default=10, help="models: training subjects when building the corpus")
+    parser.add_argument("--heldout", type=int, default=None,
+                        help="models/ablation: held-out subjects when building the corpus (default models 2, ablation 3)")
+    parser.add_argument("--refiner-steps", type=int, default=1000, help="models: Refiner training steps per condition")
+    parser.add_argument("--refiner-size", choices=("compact", "default"), default="compact", help="models: Refiner widths")
+    parser.add_argument("--crop", type=int, default=64, help="models: Refiner training crop side (default 64)")
+    parser.add_argument("--examiner-steps", type=int, default=1000, help="models: Examiner training steps")
+    parser.add_argument("--batch", type=int, default=4, help="models: training batch size")
+    parser.add_argument("--baseline-frames", default="all",
+                        help="models: corpus variants for the coarse frames, e.g. all,subset (each extra one adds a tex+geo Refiner)")
+    parser.add_argument("--examiner", default="examiner_nano", help="models: Examiner config name (default examiner_nano)")
+    parser.add_argument("--models", default="out/bench_models",
+                        help="deploy: the `bench models` report folder whose trained runs are exported (default out/bench_models)")
+    parser.add_argument("--repeats", type=int, default=5, help="deploy: timed calls per variant (the best counts)")
+    parser.add_argument("--threads", type=int, default=None, help="deploy: onnxruntime intra-op threads (default: ORT's)")
+    parser.add_argument("--augment-frames", type=int, default=8, help="deploy: source frames of the augment run")
+    parser.add_argument("--seeds", type=int, default=2, help="ablation: seeds of the baseline and the full system (default 2)")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="train: every preset's iterations; ablation: real-frame steps of every avatar run (default 600); "
+                             "frames: training iterations (default 20)")
+    parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
+                        help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import importlib
+
+    from trioman.bench.common import machine, peak_rss_mib, write_report
+
+    if args.size is None:
+        args.size = {"models": 128, "ablation": 128, "frames": 1024}.get(args.target, 256)
+    if args.heldout is None:
+        args.heldout = 3 if args.target == "ablation" else 2
+    module, bench, markdown = TARGETS[args.target]
+    module = importlib.import_module(module)
+    report = getattr(module, bench)(args)
+    if args.target in ("models", "deploy", "ablation"):
+        report["machine"], report["peak_rss_mib"] = machine(), peak_rss_mib()
+    md = getattr(module, markdown)(report)
+    path = write_report(args.out, args.target, report, md)
+    print(md)
+    print(f"bench: report {path}")
+    return 0
