@@ -1,4 +1,5 @@
 """Benchmarks and the demo: the layer above export (it may import runtime, toolkit and export; nothing
 imports it but the commands). One module per ``trioman bench`` target (synth, train, render, models,
-deploy, ablation, frames), the raster timings the train target reports, ``demo`` (``trioman demo``),
-and ``common``: the machine line, timing, peak memory and the report files."""
+deploy, ablation, frames, stability), the raster timings the train target reports, ``scenes`` (the
+renderer tests' and the stability report's scenes), ``demo`` (``trioman demo``), and ``common``: the
+machine line, timing, peak memory and the report files."""

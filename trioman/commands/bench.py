@@ -8,7 +8,8 @@ Examiner trained on a synthetic corpus, evaluated on held-out subjects); ``deplo
 time of the renderer variants, the exported models per precision and optimisation level, and the
 augment loop's stages); ``ablation`` (the paper's Tables 1 and 2: avatars trained with and without
 online augmentation on held-out subjects); ``frames`` (peak memory of training on a generated
-real-capture-sized subject). Timings are wall clock on the machine named in the report; nothing here
+real-capture-sized subject); ``stability`` (the numerical-stability checks: renderers against the float64
+oracle on extreme scenes, rotations and FK + LBS near pi, the avatar loop at 100x its learning rates). Timings are wall clock on the machine named in the report; nothing here
 is a timed test. Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
@@ -25,6 +26,7 @@ TARGETS = {
     "deploy": ("trioman.bench.deploy", "bench_deploy", "deploy_markdown"),
     "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown"),
     "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown"),
+    "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown"),
 }
 
 
@@ -57,10 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=5, help="deploy: timed calls per variant (the best counts)")
     parser.add_argument("--threads", type=int, default=None, help="deploy: onnxruntime intra-op threads (default: ORT's)")
     parser.add_argument("--augment-frames", type=int, default=8, help="deploy: source frames of the augment run")
-    parser.add_argument("--seeds", type=int, default=2, help="ablation: seeds of the baseline and the full system (default 2)")
+    parser.add_argument("--seeds", type=int, default=2, help="ablation: seeds of the baseline and the full system (default 2); stability: extreme scenes drawn")
     parser.add_argument("--iterations", type=int, default=None,
                         help="train: every preset's iterations; ablation: real-frame steps of every avatar run (default 600); "
-                             "frames: training iterations (default 20)")
+                             "frames: training iterations (default 20); stability: training steps per case (default 30)")
     parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
                         help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
 
