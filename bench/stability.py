@@ -15,8 +15,8 @@ worst error and whether every output stayed finite.
   loss stops the loop, which the row reports).
 
 ``--size`` scales nothing here; ``--iterations`` is the training cases' steps (default 30) and
-``--seeds`` the extreme scenes drawn (default 2). Gradients against finite differences and the
-Refiner/Examiner (and their ONNX variants) on extreme images are not in this report yet.
+``--seeds`` the extreme scenes drawn (default 2). The Refiner/Examiner (and their ONNX variants) on
+extreme images are not in this report yet.
 """
 
 from __future__ import annotations
@@ -78,6 +78,59 @@ def renderer_rows(seeds: int = 2) -> list[dict]:
             rows.append(_row("renderer vs float64 oracle", name, method, err,
                              np.isfinite(rgb).all() and np.isfinite(alpha).all(),
                              f"{len(scene['means'])} Gaussians, {W}x{H}, coverage {ref_alpha.mean():.2f}"))
+    return rows
+
+
+def gradient_rows(seeds: int = 2, directions: int = 3, eps: float = 1e-6) -> list[dict]:
+    """The torch rasterizer's gradients (float64 path) against central differences along random directions
+    through each input, and its float32 gradients against its float64 ones. Error: |analytic - numeric| /
+    (1 + sum |g|) (directional), max |g32 - g64| / (1 + max |g64|) (float32)."""
+    import torch
+
+    from trioman.bench.scenes import extreme_scene, random_scene
+    from trioman.toolkit.render import rasterize
+
+    names = ("means", "quats", "scales", "opacities", "colors", "background")
+    scenes = {"random, 25 Gaussians": random_scene(1, n=25, width=24, height=20)}
+    scenes.update({f"extreme scales and anisotropy (seed {s})": extreme_scene(s) for s in range(seeds)})
+    rows = []
+    for name, scene in scenes.items():
+        W, H = scene["width"], scene["height"]
+        gen = torch.Generator().manual_seed(0)
+        weights = [torch.rand(*shape, generator=gen, dtype=torch.float64) for shape in ((H, W, 3), (H, W), (H, W))]
+
+        def inputs(dtype, scene=scene):
+            xs = [torch.tensor(scene[k], dtype=dtype) for k in names[:5]] + [torch.tensor([0.3, 0.2, 0.7], dtype=dtype)]
+            return [x.requires_grad_() for x in xs]
+
+        def loss(*xs, scene=scene, weights=weights, W=W, H=H):
+            dtype = xs[0].dtype
+            vm, K = (torch.tensor(scene[k], dtype=dtype) for k in ("viewmat", "K"))
+            out = rasterize(*xs[:5], vm, K, W, H, background=xs[5])
+            wr, wa, wd = (w.to(dtype) for w in weights)
+            return (out.rgb * wr).sum() + (out.alpha * wa).sum() + 0.1 * (out.depth * wd).sum()
+
+        grads = {}
+        for dtype in (torch.float32, torch.float64):
+            xs = inputs(dtype)
+            grads[dtype] = torch.autograd.grad(loss(*xs), xs)
+        xs = [x.detach() for x in inputs(torch.float64)]
+        worst, finite = 0.0, all(bool(torch.isfinite(g).all()) for gs in grads.values() for g in gs)
+        for k, g in enumerate(grads[torch.float64]):
+            for _ in range(directions):
+                d = torch.randn(g.shape, generator=gen, dtype=torch.float64)
+                if names[k] == "scales":
+                    d = d * xs[k]  # relative steps: scales stay positive, tiny ones move in proportion
+                plus, minus = list(xs), list(xs)
+                plus[k], minus[k] = xs[k] + eps * d, xs[k] - eps * d
+                with torch.no_grad():
+                    numeric = (loss(*plus) - loss(*minus)) / (2 * eps)
+                worst = max(worst, float(abs((g * d).sum() - numeric) / (1 + g.abs().sum())))
+        rows.append(_row("rasterizer gradients", name, "torch float64 vs central differences", worst, finite,
+                         f"{directions} random directions per input, eps {eps:g}"))
+        f32 = max(float((g32.double() - g64).abs().max() / (1 + g64.abs().max()))
+                  for g32, g64 in zip(grads[torch.float32], grads[torch.float64]))
+        rows.append(_row("rasterizer gradients", name, "torch float32 vs float64", f32, finite, "per input, max over inputs"))
     return rows
 
 
@@ -191,7 +244,7 @@ def bench_stability(args: argparse.Namespace) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = args.seeds or 2
-    rows = renderer_rows(seeds) + rotation_rows() + fk_rows() + training_rows(out, iterations=args.iterations or 30)
+    rows = renderer_rows(seeds) + gradient_rows(seeds) + rotation_rows() + fk_rows() + training_rows(out, iterations=args.iterations or 30)
     return {"target": "stability", "machine": machine(), "torch_threads": torch.get_num_threads(), "rows": rows,
             "all_finite": all(r["finite"] for r in rows)}
 
