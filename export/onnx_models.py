@@ -43,6 +43,7 @@ import io
 import json
 import os
 import shutil
+import tempfile
 import time
 import warnings
 from dataclasses import dataclass
@@ -376,23 +377,37 @@ def set_metadata(proto: onnx.ModelProto, meta: dict[str, str]) -> None:
 
 
 def _torch_export(model: nn.Module, example: tuple[torch.Tensor, ...], inputs: Sequence[str],
-                  outputs: Sequence[str]) -> onnx.ModelProto:
-    buffer = io.BytesIO()
+                  outputs: Sequence[str], scratch: Path | None = None) -> onnx.ModelProto:
+    """The traced graph; with ``scratch`` (a folder), traced into a file there (the exporter then writes a
+    model over 2 GiB as external data) and read back with its weights, for ``_save(..., external=True)``."""
+    target: Any = io.BytesIO() if scratch is None else str(scratch / "trace.onnx")
     # no autograd: the trace would keep every activation for a backward pass (the same graph either way)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice and tracer warnings
         torch.onnx.export(
-            model, example, buffer, input_names=list(inputs), output_names=list(outputs), opset_version=OPSET,
+            model, example, target, input_names=list(inputs), output_names=list(outputs), opset_version=OPSET,
             dynamic_axes={n: {0: BATCH_AXIS} for n in list(inputs) + list(outputs)}, dynamo=False,
         )
-    return onnx.load_from_string(buffer.getvalue())
+    return onnx.load_from_string(target.getvalue()) if scratch is None else onnx.load(target)
 
 
-def _save(proto: onnx.ModelProto, path: Path) -> None:
-    with open(path, "wb") as f:
-        f.write(proto.SerializeToString())
-        f.flush()
-        os.fsync(f.fileno())
+def external_data_path(path: Path) -> Path:
+    """The weights file beside a model saved with external data: ``<name>.onnx.data``."""
+    return path.with_name(path.name + ".data")
+
+
+def _save(proto: onnx.ModelProto, path: Path, external: bool = False) -> None:
+    """Write ``proto``; ``external`` puts every tensor over 1 KiB into ``external_data_path(path)`` (one file,
+    read by onnxruntime from the same folder), for models over protobuf's 2 GiB."""
+    if external:
+        onnx.save_model(proto, str(path), save_as_external_data=True, all_tensors_to_one_file=True,
+                        location=external_data_path(path).name, size_threshold=1024)
+    else:
+        with open(path, "wb") as f:
+            f.write(proto.SerializeToString())
+    for p in (path, external_data_path(path)) if external else (path,):
+        with open(p, "rb+") as f:
+            os.fsync(f.fileno())
 
 
 # --------------------------------------------------------------------------------------------------
@@ -478,19 +493,21 @@ class _Job:
 
     def export_fp32(self, path: Path) -> dict:
         t0 = time.perf_counter()
-        size = sum(t.numel() * t.element_size() for t in self.model.state_dict().values())
-        if size >= MAX_PROTO_BYTES:
-            raise ExportError(f"{self.kind}: {size / 2**30:.2f} GiB of weights exceed protobuf's 2 GiB limit on one ONNX file; "
-                              f"the external-data layout is not written by this exporter (docs/formats.md, 'ONNX models')")
+        weights = sum(t.numel() * t.element_size() for t in self.model.state_dict().values())
+        external = weights >= MAX_PROTO_BYTES  # one protobuf holds < 2 GiB: the weights go beside the graph
         H, W = self.size
         g = torch.Generator().manual_seed(self.seed)
         example = tuple(torch.rand((TRACE_BATCH, 3, H, W), generator=g) for _ in self.inputs)
-        proto = _torch_export(self.model, example, self.inputs, self.outputs)
+        with tempfile.TemporaryDirectory(dir=path.parent) as scratch:
+            proto = _torch_export(self.model, example, self.inputs, self.outputs, Path(scratch) if external else None)
         pin_output_dims(proto)
         check_dims(proto, self.inputs, self.outputs, (3, H, W), self.output_tail(), f"{self.kind} fp32")
-        set_metadata(proto, self.metadata("fp32"))
-        onnx.checker.check_model(proto, full_check=True)
-        _save(proto, path)
+        set_metadata(proto, self.metadata("fp32", {"external_data": external_data_path(path).name} if external else None))
+        if not external:
+            onnx.checker.check_model(proto, full_check=True)
+        _save(proto, path, external)
+        if external:
+            onnx.checker.check_model(str(path), full_check=True)
         parity = self.parity(path)
         if not parity["max_abs"] <= self.atol:  # NaN fails too
             where = "random" if parity["random"] >= parity["frames"] else f"{parity['frames_source']} frame"
@@ -506,6 +523,9 @@ class _Job:
                  "note": note}
         if status == "written":
             entry.update(bytes=path.stat().st_size, sha256=sha256_file(path))
+            data = external_data_path(path)
+            if data.is_file():
+                entry["external_data"] = {"file": data.name, "bytes": data.stat().st_size, "sha256": sha256_file(data)}
         entry["seconds"] = round(time.perf_counter() - t0, 3)
         return entry
 
@@ -805,6 +825,7 @@ def _export_into(job: _Job, folder: Path, variants: tuple[str, ...]) -> dict[str
         entries[path.name] = entry
     if "fp32" not in variants:
         fp32.unlink()
+        external_data_path(fp32).unlink(missing_ok=True)
     return entries
 
 
@@ -831,7 +852,10 @@ def _export_one(kind: str, model_or_ckpt: Any, path: str | os.PathLike, *, size:
         entries = _export_into(job, tmp, (precision,))
         entry = entries[file_name(kind, precision)] | {"file": str(path), **_model_report(job)}
         if entry["status"] == "written":
-            os.replace(tmp / file_name(kind, precision), path)
+            written = tmp / file_name(kind, precision)
+            if external_data_path(written).is_file():  # its location is the bare name "<file name>.data"
+                os.replace(external_data_path(written), path.with_name(external_data_path(written).name))
+            os.replace(written, path)
             fsync_dir(path.parent)
         return entry
     finally:

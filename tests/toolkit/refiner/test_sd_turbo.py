@@ -174,10 +174,20 @@ def test_train_refiner_and_export_commands(folder, corpus, tmp_path):  # noqa: F
     assert report["files"]["refiner.onnx"]["parity_max_abs"] <= 1e-3
 
 
-def test_export_over_the_protobuf_limit_says_so(folder, tmp_path, monkeypatch):
+def test_export_over_the_protobuf_limit_writes_external_data(folder, tmp_path, monkeypatch):
     from trioman.export import onnx_models
+    from trioman.runtime.models import load_model
 
     monkeypatch.setattr(onnx_models, "MAX_PROTO_BYTES", 1000)  # stands in for SD-Turbo's 3.8 GB of fp32 weights
-    with pytest.raises(onnx_models.ExportError, match="exceed protobuf's 2 GiB limit"):
-        onnx_models.export_refiner_onnx(create_refiner(config(folder)), tmp_path / "r.onnx", size=S, gate_frames=2)
-    assert not (tmp_path / "r.onnx").exists()
+    model = create_refiner(config(folder), seed=0)
+    report = onnx_models.export_onnx(refiner=model, out=tmp_path / "onnx", size=S, variants="fp32,fp16", gate_frames=2)
+    entry = report["files"]["refiner.onnx"]
+    assert entry["external_data"]["file"] == "refiner.onnx.data" and entry["external_data"]["bytes"] > 100_000
+    assert entry["parity_max_abs"] <= 1e-3 and report["files"]["refiner.fp16.onnx"]["status"] == "written"
+    one = tmp_path / "one.onnx"  # a single file moves with its weights
+    onnx_models.export_refiner_onnx(model, one, size=S, gate_frames=2)
+    assert (tmp_path / "refiner.onnx.data").is_file()
+    x = {n: np.random.default_rng(1).random((2, 3, S, S), dtype=np.float32) for n in ("coarse", "reference", "normal")}
+    with torch.no_grad():
+        want = model(*(torch.from_numpy(x[n]) for n in ("coarse", "reference", "normal"))).numpy()
+    assert np.abs(load_model(one, "refiner").run(**x) - want).max() <= 1e-3
