@@ -6,6 +6,8 @@ worst error and whether every output stayed finite.
   faint Gaussians and needles from 5 cm in front of the camera (``bench.scenes.extreme_scene``), half the
   Gaussians behind the camera, opacities at 1/255 and at 1, and a scene 1e4 times larger seen from 1e4
   times farther. Error: max abs difference of RGB and alpha over the image.
+- Refiner and Examiner: the torch models (randomised weights) in float32 against float64 on extreme
+  images (constant black, white, 1e-8, a one-pixel checkerboard, saturated noise).
 - Rotations and FK + LBS: axis-angle -> matrix (numpy float64 and float32, torch float32) against scipy's
   matrix exponential in float64 at angles near pi, at pi and tiny; the skinning transforms of a chain of
   joints all rotated by those angles (numpy and torch) against the chain composed from the exponentials.
@@ -15,8 +17,8 @@ worst error and whether every output stayed finite.
   loss stops the loop, which the row reports).
 
 ``--size`` scales nothing here; ``--iterations`` is the training cases' steps (default 30) and
-``--seeds`` the extreme scenes drawn (default 2). The Refiner/Examiner (and their ONNX variants) on
-extreme images are not in this report yet.
+``--seeds`` the extreme scenes drawn (default 2). The Refiner's and Examiner's ONNX variants (fp32, fp16,
+int8) on extreme images are not in this report yet.
 """
 
 from __future__ import annotations
@@ -134,6 +136,59 @@ def gradient_rows(seeds: int = 2, directions: int = 3, eps: float = 1e-6) -> lis
     return rows
 
 
+def extreme_images(size: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """[3, size, size] images in [0, 1] that networks rarely see: constant black, white and 1e-8,
+    a one-pixel checkerboard, saturated noise."""
+    rng = np.random.default_rng(seed)
+    i, j = np.indices((size, size))
+    return {"black": np.zeros((3, size, size)), "white": np.ones((3, size, size)),
+            "constant 1e-8": np.full((3, size, size), 1e-8),
+            "one-pixel checkerboard": np.broadcast_to((i + j) % 2, (3, size, size)).astype(np.float64),
+            "saturated noise": (rng.uniform(size=(3, size, size)) > 0.5).astype(np.float64)}
+
+
+def _randomised(model, seed: int = 0, std: float = 0.05):
+    """``model`` with every parameter moved by N(0, std): untrained zero-initialised layers pass their
+    input through unchanged, which would hide the arithmetic under test."""
+    import torch
+
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(std * torch.randn(p.shape, generator=gen))
+    return model.eval()
+
+
+def model_rows(size: int = 64) -> list[dict]:
+    """The Refiner (default config, tex+geo) and the Examiner (examiner_nano), randomised weights, in float32
+    against the same weights in float64 on extreme images. Error: max abs difference of the refined
+    images, of the scores."""
+    import copy
+
+    import torch
+
+    from trioman.toolkit.examiner import create_examiner, examiner_config
+    from trioman.toolkit.refiner import create_refiner
+
+    refiner = _randomised(create_refiner())
+    examiner_cfg = examiner_config("examiner_nano")
+    examiner = _randomised(create_examiner(examiner_cfg))
+    rows = []
+    for name, (model, side, views) in {"Refiner (tex+geo)": (refiner, size, 3),
+                                       "Examiner (examiner_nano)": (examiner, examiner_cfg.img_size, 2)}.items():
+        model64 = copy.deepcopy(model).double()
+        for label, image in extreme_images(side).items():
+            x = torch.from_numpy(np.ascontiguousarray(image))[None]
+            with torch.no_grad():
+                y32 = model(*[x.float()] * views)
+                y64 = model64(*[x] * views)
+            y32, y64 = (np.asarray(y.detach().numpy() if hasattr(y, "detach") else y, np.float64) for y in (y32, y64))
+            rows.append(_row("Refiner and Examiner, float32 vs float64", f"{name}, {label}", "torch float32",
+                             np.abs(y32 - y64).max(), np.isfinite(y32).all(),
+                             f"{side}x{side}, output range [{y32.min():.3g}, {y32.max():.3g}]"))
+    return rows
+
+
 def _expm(aa: np.ndarray) -> np.ndarray:
     from scipy.linalg import expm
 
@@ -244,7 +299,7 @@ def bench_stability(args: argparse.Namespace) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = args.seeds or 2
-    rows = renderer_rows(seeds) + gradient_rows(seeds) + rotation_rows() + fk_rows() + training_rows(out, iterations=args.iterations or 30)
+    rows = renderer_rows(seeds) + gradient_rows(seeds) + model_rows() + rotation_rows() + fk_rows() + training_rows(out, iterations=args.iterations or 30)
     return {"target": "stability", "machine": machine(), "torch_threads": torch.get_num_threads(), "rows": rows,
             "all_finite": all(r["finite"] for r in rows)}
 

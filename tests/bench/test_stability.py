@@ -15,7 +15,8 @@ def test_bench_stability_reports_every_case(tmp_path, capsys):
     report = json.loads((out / "stability.json").read_text())
     rows = report["rows"]
     groups = {r["group"] for r in rows}
-    assert {"renderer vs float64 oracle", "rasterizer gradients", "axis-angle -> matrix vs expm",
+    assert {"renderer vs float64 oracle", "rasterizer gradients", "Refiner and Examiner, float32 vs float64",
+            "axis-angle -> matrix vs expm",
             "avatar training loop"} <= groups
     assert report["all_finite"] and all(r["finite"] for r in rows)
     for r in rows:
