@@ -44,15 +44,17 @@ def bench_models(args: argparse.Namespace) -> dict:
     out = Path(args.out)
     runs = out / "runs"
     fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop)
+    backbone = {"backbone": getattr(args, "backbone", "scratch"), "pretrained": getattr(args, "pretrained", None)}
+    tag = "" if backbone["backbone"] == "scratch" else "_" + backbone["backbone"].replace("-", "_")  # its own run folders
     refiners, infos = {}, {}
     for cond in CONDITIONS:
-        refiners[cond], infos[f"refiner_{cond}"] = fit_refiner(corpus, runs / f"refiner_{cond.replace('+', '_')}", cond, fit,
-                                                               args.refiner_size)
+        refiners[cond], infos[f"refiner_{cond}"] = fit_refiner(corpus, runs / f"refiner_{cond.replace('+', '_')}{tag}", cond, fit,
+                                                               args.refiner_size, **backbone)
     for v in variants:
         if v != "all":
             key = f"refiner_tex+geo_{v}"
-            refiners[key], infos[key] = fit_refiner(corpus, runs / f"refiner_tex_geo_{v}", "tex+geo",
-                                                    dataclasses.replace(fit, baseline_frames=v), args.refiner_size)
+            refiners[key], infos[key] = fit_refiner(corpus, runs / f"refiner_tex_geo_{v}{tag}", "tex+geo",
+                                                    dataclasses.replace(fit, baseline_frames=v), args.refiner_size, **backbone)
     examiner, infos["examiner"] = fit_examiner(corpus, runs / "examiner", args.examiner,
                                                FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None))
 
@@ -86,7 +88,7 @@ def bench_models(args: argparse.Namespace) -> dict:
             "training": {k: {"seconds": v["seconds"], "steps": v["fit"]["steps"], "final_loss": v["final_loss"]}
                          for k, v in infos.items()},
             "examiner_selection": {k: infos["examiner"].get(k) for k in ("selected_step", "validation_auroc")},
-            "inference": timing, "figure": str(figure), "threads": torch.get_num_threads()}
+            "inference": timing, "figure": str(figure), "threads": torch.get_num_threads(), "refiner_backbone": backbone["backbone"]}
 
 
 def _density_plot(scores: dict[str, np.ndarray], path: Path) -> None:

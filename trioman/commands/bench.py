@@ -48,6 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="models/ablation: held-out subjects when building the corpus (default models 2, ablation 3)")
     parser.add_argument("--refiner-steps", type=int, default=1000, help="models: Refiner training steps per condition")
     parser.add_argument("--refiner-size", choices=("compact", "default"), default="compact", help="models: Refiner widths")
+    parser.add_argument("--backbone", choices=("scratch", "sd-turbo"), default="scratch", help="models: the Refiner's backbone")
+    parser.add_argument("--pretrained", metavar="DIR", help="models: local SD-Turbo folder for --backbone sd-turbo (never downloaded)")
     parser.add_argument("--crop", type=int, default=64, help="models: Refiner training crop side (default 64)")
     parser.add_argument("--examiner-steps", type=int, default=1000, help="models: Examiner training steps")
     parser.add_argument("--batch", type=int, default=4, help="models: training batch size")
