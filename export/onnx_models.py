@@ -758,16 +758,17 @@ def _square(size: int | Sequence[int] | None, name: str = "size") -> tuple[int, 
     return hw
 
 
-def refiner_export_size(config: Any, size: int | Sequence[int] | None, calibration: Sequence[str | os.PathLike] | None) -> tuple[int, int]:
+def refiner_export_size(config: Any, size: int | Sequence[int] | None, calibration: Sequence[str | os.PathLike] | None,
+                        multiple: int | None = None) -> tuple[int, int]:
     """``size`` if given, else the calibration triplets' frame size, else ``config.image_size``; each side a
-    multiple of ``config.total_downsample``."""
+    multiple of ``multiple`` (the model's ``total_downsample``; default ``config.total_downsample``)."""
     hw = _square(size)
     origin = "size"
     if hw is None and calibration:
         hw, origin = triplet_size(calibration), "the calibration triplets' frame size"
     if hw is None:
         hw, origin = (config.image_size, config.image_size), "the Refiner's config.image_size"
-    f = config.total_downsample
+    f = multiple or config.total_downsample
     if hw[0] % f or hw[1] % f:
         raise ExportError(f"size: (H, W) = {hw} ({origin}) is not a multiple of the Refiner's total downsampling {f}; "
                           f"pass a size that is (--size)")
@@ -783,7 +784,7 @@ def _job(kind: str, model_or_ckpt: Any, size: Any, calibration: Sequence[str | o
          calibration_frames: int, gate_frames: int, triplets: Any = None) -> _Job:
     src = _load(kind, model_or_ckpt)
     if kind == "refiner":
-        hw = refiner_export_size(src.model.config, size, calibration)
+        hw = refiner_export_size(src.model.config, size, calibration, src.model.total_downsample)
     else:
         s = src.model.config.img_size
         hw = (s, s)

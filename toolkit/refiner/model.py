@@ -54,6 +54,11 @@ class Refiner(nn.Module):
     def input_names(self) -> tuple[str, ...]:
         return INPUT_NAMES[: self.views]
 
+    @property
+    def total_downsample(self) -> int:
+        """H and W must be multiples of this (the config's; every backbone's model has the attribute)."""
+        return self.config.total_downsample
+
     def check_inputs(self, coarse: torch.Tensor, reference: torch.Tensor | None, normal: torch.Tensor | None) -> None:
         """Raise ValueError/TypeError naming the argument for a missing or misshapen input."""
         f = self.config.total_downsample

@@ -38,7 +38,7 @@ class TorchRefiner:
     def __init__(self, model: torch.nn.Module, path: Path) -> None:
         self.model, self.path = model.eval(), path
         self.conditions: str = model.config.conditions
-        self.multiple: int = model.config.total_downsample
+        self.multiple: int = model.total_downsample
 
     def check_size(self, height: int, width: int, flag: str) -> None:
         if height % self.multiple or width % self.multiple:

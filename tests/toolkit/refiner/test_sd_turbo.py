@@ -204,3 +204,13 @@ def test_bench_models_with_the_sd_turbo_backbone(folder, corpus, tmp_path):  # n
     r = bench_models(args)
     assert r["refiner_backbone"] == "sd-turbo" and (tmp_path / "bench" / "runs" / "refiner_tex_geo_sd_turbo").is_dir()
     assert all(np.isfinite(v) for m in r["metrics"].values() for v in m.values()) and r["inference"]["refiner_tex+geo_ms"] > 0
+
+
+def test_sizes_follow_the_model_not_the_scratch_config(folder, tmp_path):
+    from trioman.export.onnx_models import export_refiner_onnx
+    from trioman.toolkit.train.pseudo_models import TorchRefiner
+
+    model = create_refiner(config(folder))  # RefinerConfig's scratch widths would ask for multiples of 16
+    assert model.config.total_downsample == 16 and TorchRefiner(model, tmp_path).multiple == 4
+    entry = export_refiner_onnx(model, tmp_path / "r36.onnx", size=36, gate_frames=2)
+    assert entry["input_size"] == [36, 36] and entry["parity_max_abs"] <= 1e-3
