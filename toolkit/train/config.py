@@ -41,6 +41,7 @@ class TrainConfig:
     extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
     augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
     checkpoint_every: int = 250
+    max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient (skipped) that stop the run
     keep_checkpoints: int = 2
     seed: int = 0
     weights: LossWeights = field(default_factory=LossWeights)
@@ -53,6 +54,8 @@ class TrainConfig:
             raise ValueError(f"image_scale: must lie in [0.05, 1], got {self.image_scale}")
         if self.frames not in ("train", "all"):
             raise ValueError(f"frames: expected 'train' or 'all', got {self.frames!r}")
+        if isinstance(self.max_skipped, bool) or not isinstance(self.max_skipped, int) or self.max_skipped < 1:
+            raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
         if self.frame_stride < 1:
             raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
         for name in ("lr", "point_color_lr"):

@@ -22,6 +22,7 @@ from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.data import join_frames, load_frames
+from trioman.toolkit.train.guard import StepGuard, check_weights
 from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
@@ -140,24 +141,27 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     optimizer = torch.optim.Adam(param_groups(model, cfg), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)
     torch_gen = torch.Generator().manual_seed(cfg.seed)
-    step, seconds = 0, 0.0
+    step, seconds, skipped = 0, 0.0, 0
     ckpt = latest_checkpoint(run) if resume else None
     if ckpt is not None:
         state = load_checkpoint(ckpt)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
-        step, seconds = int(state["step"]), float(state["seconds"])
+        step, seconds, skipped = int(state["step"]), float(state["seconds"]), int(state.get("skipped", 0))
         rng.bit_generator.state = json.loads(state["numpy_rng"])
         torch_gen.set_state(state["torch_rng"])
         if augmenter is not None:
             augmenter.load_state_dict(state["augment"])
+    guard = StepGuard("train", cfg.max_skipped, skipped)
     write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
     log = run / "train_log.csv"
     _trim_log(log, step)
 
     def checkpoint() -> None:
+        check_weights(model, "train", step, latest_checkpoint(run))
         path = save_checkpoint(run, step, {
-            "step": step, "seconds": seconds, "model": model.state_dict(), "optimizer": optimizer.state_dict(),
+            "step": step, "seconds": seconds, "skipped": guard.skipped, "model": model.state_dict(),
+            "optimizer": optimizer.state_dict(),
             "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
             "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
             **({} if augmenter is None else {"augment": augmenter.state_dict()}),
@@ -181,14 +185,15 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
                 sample = augmenter.draw()
             else:
                 sample = frames.sample(int(rng.integers(len(frames))))
-            loss, p = _step(model, optimizer, sample, cfg, torch_gen, lpips)
+            loss, p = _step(model, optimizer, sample, cfg, torch_gen, lpips, guard, step)
             step += 1
             done_here += 1
             seconds += time.perf_counter() - t0
-            run_psnr = p if run_psnr is None else 0.9 * run_psnr + 0.1 * p
+            if np.isfinite(p):
+                run_psnr = p if run_psnr is None else 0.9 * run_psnr + 0.1 * p
             log_file.write(f"{step},{seconds:.3f},{loss:.6f},{p:.4f},{learning_rate(cfg, step - 1):.3g}\n")
             bar.update(1)
-            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{run_psnr:.2f}")
+            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{run_psnr or 0:.2f}", **({"skipped": guard.skipped} if guard.skipped else {}))
             if step % cfg.checkpoint_every == 0 or step == cfg.iterations:
                 log_file.flush()
                 checkpoint()
@@ -197,8 +202,12 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
 
 
 def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict, cfg: TrainConfig,
-          torch_gen: torch.Generator, lpips) -> tuple[float, float]:
-    """One optimisation step on one frame (``FrameSet.sample`` or a pseudo-GT pool frame)."""
+          torch_gen: torch.Generator, lpips, guard: StepGuard, step: int) -> tuple[float, float]:
+    """One optimisation step on one frame (``FrameSet.sample`` or a pseudo-GT pool frame).
+
+    A non-finite loss or gradient skips the update and counts it in ``guard`` (which stops the run after
+    ``cfg.max_skipped`` in a row). -> (loss, PSNR of the render) as floats.
+    """
     bg = torch.rand(3, generator=torch_gen) if cfg.random_background else torch.ones(3)
     gt = sample["images"] + (1 - sample["masks"])[..., None] * bg  # premultiplied GT over the same colour
     out = model(sample["poses"], sample["trans"])
@@ -211,12 +220,12 @@ def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict,
         pred = img if pred is None else pred
         loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips)
     loss = loss + regularisers(model, out, cfg)
-    if not torch.isfinite(loss):
-        raise FloatingPointError(f"train: the loss is not finite ({float(loss)}); the run stops before the update "
-                                 f"(the last checkpoint is intact)")
+    hint = f"(learning rate {learning_rate(cfg, step):.3g}; the last checkpoint is intact)"
     optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
+    if guard.finite_ok(loss, step, "loss", hint):
+        loss.backward()
+        if guard.grads_ok(model.parameters(), step, hint):
+            optimizer.step()
     with torch.no_grad():
         p = float(psnr(pred.permute(2, 0, 1)[None].clamp(0, 1), gt.permute(2, 0, 1)[None])[0])
     return float(loss.detach()), p

@@ -276,3 +276,32 @@ def test_a_resume_at_another_thread_count_says_so(subject, tmp_path, capsys):
         torch.set_num_threads(threads)
     assert json.loads((run / "config.json").read_text())["threads"] == 1
     assert "was trained with 1 torch threads, this process has 2" in capsys.readouterr().err
+
+
+def test_non_finite_steps_are_skipped_counted_and_stop_the_run(subject, tmp_path, monkeypatch):
+    import trioman.toolkit.train.loop as loop
+
+    real = loop.regularisers
+    bad_steps = {2, 3}  # calls (0-based) whose loss is NaN
+    calls = []
+
+    def flaky(model, out, cfg):
+        calls.append(1)
+        return real(model, out, cfg) + (float("nan") if len(calls) - 1 in bad_steps else 0.0)
+
+    monkeypatch.setattr(loop, "regularisers", flaky)
+    cfg = TrainConfig(iterations=6, checkpoint_every=3, max_skipped=3, avatar=TINY_AVATAR)
+    run = train(subject, tmp_path / "g", cfg, progress=False)
+    ckpts = list_checkpoints(run)
+    states = [load_checkpoint(c) for c in ckpts]
+    assert [s["skipped"] for s in states] == [1, 2]  # counted (steps 3 and 4), and the run went on
+    assert all(torch.isfinite(v).all() for v in states[-1]["model"].values())
+    assert np.isnan(losses(run)[2:4]).all() and np.isfinite(losses(run)[[0, 1, 4, 5]]).all()
+
+    calls.clear()
+    bad_steps.update(range(100))
+    with pytest.raises(FloatingPointError, match=r"train: 3 consecutive steps .* were skipped; the run stops"):
+        train(subject, tmp_path / "h", cfg, progress=False)
+    assert not list_checkpoints(tmp_path / "h")  # no checkpoint of a broken run
+    with pytest.raises(ValueError, match="max_skipped: must be a positive integer, got 0"):
+        TrainConfig(max_skipped=0)
