@@ -26,6 +26,25 @@ OUTPUT_NAME = "refined"
 LOGIT_EPS = 1e-3
 
 
+def check_refiner_inputs(input_names: tuple[str, ...], conditions: str, downsample: int, what: str,
+                         coarse: torch.Tensor, reference: torch.Tensor | None, normal: torch.Tensor | None) -> None:
+    """The inputs a Refiner backbone reads: float [B, 3, H, W], H and W positive multiples of ``downsample``
+    (``what`` names it in the message), all shaped like ``coarse``; else ValueError/TypeError naming the argument."""
+    for name, x in zip(INPUT_NAMES, (coarse, reference, normal)):
+        if name not in input_names:
+            continue
+        if x is None:
+            raise ValueError(f"{name}: required with conditions={conditions!r}")
+        if not isinstance(x, torch.Tensor) or not x.is_floating_point():
+            raise TypeError(f"{name}: expected a float torch.Tensor [B, 3, H, W] in [0, 1], got {type(x).__name__}")
+        if x.ndim != 4 or x.shape[1] != 3 or x.shape[0] < 1:
+            raise ValueError(f"{name}: expected shape [B, 3, H, W], got {tuple(x.shape)}")
+        if x.shape[2] % downsample or x.shape[3] % downsample or x.shape[2] == 0 or x.shape[3] == 0:
+            raise ValueError(f"{name}: H and W must be positive multiples of {downsample} ({what}), got {tuple(x.shape[2:])}")
+        if x.shape != coarse.shape:
+            raise ValueError(f"{name}: shape {tuple(x.shape)} differs from coarse {tuple(coarse.shape)}")
+
+
 class Refiner(nn.Module):
     """``forward(coarse, reference=None, normal=None)`` with [B, 3, H, W] images in [0, 1] -> [B, V, 3, H, W].
 
@@ -61,20 +80,8 @@ class Refiner(nn.Module):
 
     def check_inputs(self, coarse: torch.Tensor, reference: torch.Tensor | None, normal: torch.Tensor | None) -> None:
         """Raise ValueError/TypeError naming the argument for a missing or misshapen input."""
-        f = self.config.total_downsample
-        for name, x in zip(INPUT_NAMES, (coarse, reference, normal)):
-            if name not in self.input_names:
-                continue
-            if x is None:
-                raise ValueError(f"{name}: required with conditions={self.config.conditions!r}")
-            if not isinstance(x, torch.Tensor) or not x.is_floating_point():
-                raise TypeError(f"{name}: expected a float torch.Tensor [B, 3, H, W] in [0, 1], got {type(x).__name__}")
-            if x.ndim != 4 or x.shape[1] != 3 or x.shape[0] < 1:
-                raise ValueError(f"{name}: expected shape [B, 3, H, W], got {tuple(x.shape)}")
-            if x.shape[2] % f or x.shape[3] % f or x.shape[2] == 0 or x.shape[3] == 0:
-                raise ValueError(f"{name}: H and W must be positive multiples of {f} (total downsampling), got {tuple(x.shape[2:])}")
-            if x.shape != coarse.shape:
-                raise ValueError(f"{name}: shape {tuple(x.shape)} differs from coarse {tuple(coarse.shape)}")
+        check_refiner_inputs(self.input_names, self.config.conditions, self.config.total_downsample, "total downsampling",
+                             coarse, reference, normal)
 
     def forward(self, coarse: torch.Tensor, reference: torch.Tensor | None = None, normal: torch.Tensor | None = None) -> torch.Tensor:
         if not torch.jit.is_tracing():

@@ -30,7 +30,7 @@ import torch
 from torch import nn
 
 from trioman.toolkit.refiner.config import RefinerConfig
-from trioman.toolkit.refiner.model import INPUT_NAMES
+from trioman.toolkit.refiner.model import INPUT_NAMES, check_refiner_inputs
 
 PROMPT = "remove degradation"  # Difix's fixed prompt
 PROMPT_FILE = "prompt_embeds.safetensors"
@@ -180,20 +180,8 @@ class SdTurboRefiner(nn.Module):
 
     def check_inputs(self, coarse: torch.Tensor, reference: torch.Tensor | None, normal: torch.Tensor | None) -> None:
         """Raise ValueError/TypeError naming the argument for a missing or misshapen input."""
-        f = self.total_downsample
-        for name, x in zip(INPUT_NAMES, (coarse, reference, normal)):
-            if name not in self.input_names:
-                continue
-            if x is None:
-                raise ValueError(f"{name}: required with conditions={self.config.conditions!r}")
-            if not isinstance(x, torch.Tensor) or not x.is_floating_point():
-                raise TypeError(f"{name}: expected a float torch.Tensor [B, 3, H, W] in [0, 1], got {type(x).__name__}")
-            if x.ndim != 4 or x.shape[1] != 3 or x.shape[0] < 1:
-                raise ValueError(f"{name}: expected shape [B, 3, H, W], got {tuple(x.shape)}")
-            if x.shape[2] % f or x.shape[3] % f or x.shape[2] == 0 or x.shape[3] == 0:
-                raise ValueError(f"{name}: H and W must be positive multiples of {f} (sd-turbo's total downsampling), got {tuple(x.shape[2:])}")
-            if x.shape != coarse.shape:
-                raise ValueError(f"{name}: shape {tuple(x.shape)} differs from coarse {tuple(coarse.shape)}")
+        check_refiner_inputs(self.input_names, self.config.conditions, self.total_downsample,
+                             "sd-turbo's total downsampling", coarse, reference, normal)
 
     def encode(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """Images [N, 3, H, W] in [-1, 1] -> (scaled latent mean [N, c, h, w], the down blocks' inputs)."""
