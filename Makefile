@@ -1,5 +1,5 @@
 # Two commands do all the set-up on a fresh machine (Python 3.11):
-#   make demo   create .venv, install CPU torch + trioman[train,smplx,diffusion,dev], run the demo
+#   make demo   create .venv, install CPU torch + trioman[train,smplx,diffusion,viewer,dev], run the demo
 #   make test   the same install, then ruff check and the test suite
 PYTHON ?= python3
 VENV   ?= .venv
@@ -16,7 +16,7 @@ $(BIN)/python:
 # Re-install when the project's metadata changes.
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/pip install -q "$(TORCH)"
-	$(BIN)/pip install -q -e ".[train,smplx,diffusion,dev]"
+	$(BIN)/pip install -q -e ".[train,smplx,diffusion,viewer,dev]"
 	touch $@
 
 install: $(VENV)/.installed

@@ -42,12 +42,13 @@ COMMANDS = (
     Command("animate", "trioman.commands.animate", "animate an exported avatar with a motion, as an MP4 (no torch)"),
     Command("render", "trioman.commands.render", "render one image of an exported avatar (no torch)"),
     Command("augment", "trioman.commands.augment", "pseudo-GT frames: Generator, Refiner, Examiner on an exported avatar (no torch)"),
+    Command("view", "trioman.commands.view", "an avatar in the browser, posed live: motions, bends, subject cameras, augment outputs (no torch)", "viewer"),
     Command("inspect", "trioman.commands.inspect", "validate a subject folder and print a summary"),
     Command("bench", "trioman.commands.bench", "benchmarks: time and memory, written as markdown + JSON", "train"),
 )
 
 # The packages each extra brings, by import name: checked before a command of that extra runs.
-EXTRA_IMPORTS = {"train": ("torch", "anny"), "smplx": ("torch", "smplx")}
+EXTRA_IMPORTS = {"train": ("torch", "anny"), "smplx": ("torch", "smplx"), "viewer": ("viser",)}
 
 
 class MissingExtraError(RuntimeError):
@@ -60,8 +61,8 @@ def require_extra(command: str, extra: str) -> None:
     if missing:
         raise MissingExtraError(
             f"'trioman {command}' needs the '{extra}' extra, and {', '.join(missing)} "
-            f"{'is' if len(missing) == 1 else 'are'} not installed: pip install 'trioman[{extra}]' "
-            f"(CPU torch: pip install torch==2.13.0 first)"
+            f"{'is' if len(missing) == 1 else 'are'} not installed: pip install 'trioman[{extra}]'"
+            + (" (CPU torch: pip install torch==2.13.0 first)" if "torch" in EXTRA_IMPORTS[extra] else "")
         )
 
 

@@ -1,0 +1,48 @@
+"""``trioman view AVATAR [--motion M] [--subject S]`` / ``trioman view --augmented DIR``: a web viewer (no torch).
+
+The avatar's Gaussians as splats in the browser (viser), posed live by the runtime: a motion picker,
+play/pause, a frame slider, the rest pose, pose-dependent terms on/off and a bend slider per joint
+group. ``--subject`` adds the subject's training cameras (click one: its real frame beside the render);
+``--augmented`` shows an augment output. The library: trioman.runtime.viewer. Needs the ``viewer`` extra.
+Module contract (trioman/cli.py): standard-library imports only at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("avatar", metavar="AVATAR", nargs="?", default=None,
+                        help="avatar folder (trioman export avatar); with --augmented, default: the run's avatar")
+    parser.add_argument("--motion", default=None,
+                        help="the motion shown first: a shipped motion (walk, wave, squat, turn, jump, step, arms_raised), "
+                             "a motion .npz file or a subject folder (its test poses); all shipped motions stay in the picker")
+    parser.add_argument("--subject", default=None,
+                        help="subject folder: its training cameras as frustums (click one: real frame beside the render) "
+                             "and its test poses in the motion picker")
+    parser.add_argument("--augmented", default=None, metavar="DIR",
+                        help="a trioman augment output: source frames, candidates, refined frames, Examiner scores")
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1, this machine only)")
+    parser.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free port)")
+    parser.add_argument("--fps", type=float, default=None, help="playback rate (default: the motion's)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import threading
+
+    from trioman.runtime.viewer.app import open_viewer
+
+    if args.fps is not None and not args.fps > 0:
+        raise ValueError(f"--fps: must be > 0, got {args.fps}")
+    viewer = open_viewer(args.avatar, motion=args.motion, subject=args.subject, augmented=args.augmented,
+                         host=args.host, port=args.port, fps=args.fps)
+    try:
+        avatar = viewer.poser.avatar
+        print(f"view: {avatar.num_gaussians:,} Gaussians of {avatar.root}, motion {viewer.poser.name!r}; "
+              f"{viewer.last_update['pose_ms']:.0f} ms a pose update")
+        print(f"view: open {viewer.url} in a browser (Ctrl-C stops)", flush=True)
+        threading.Event().wait()
+    finally:
+        viewer.stop()
+    return 0
