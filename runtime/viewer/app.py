@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 from trioman.runtime.formats import load_avatar
-from trioman.runtime.motions import MOTIONS
-from trioman.runtime.viewer.posing import Poser, motion_catalog
+from trioman.runtime.viewer.posing import Poser, motion_catalog, motion_label
 from trioman.runtime.viewer.server import AvatarViewer, ViewerConfig
 
 
@@ -26,7 +24,7 @@ def open_viewer(avatar: str | os.PathLike | None, motion: str | None = None, sub
     av = load_avatar(avatar)
     poser = Poser(av, motion_catalog(av.skeleton, motion, subject))
     if motion is not None:
-        poser.select(motion if motion in MOTIONS else (Path(motion).name or motion))
+        poser.select(motion_label(motion))
     viewer = AvatarViewer(poser, ViewerConfig(host=host, port=port, fps=fps))
     try:
         if subject is not None:

@@ -14,7 +14,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping, NamedTuple
+from typing import Mapping, NamedTuple
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 BEND_AXES: Mapping[str, int] = {"root": 2, "torso": 0, "head": 0, "arms": 1, "legs": 0, "hands": 0, "other": 0}
 MAX_BEND = 180.0  # degrees, either way
 SUBJECT_MOTION = "test poses"  # picker label prefix of a subject's test poses
+REST_MOTION = "rest"  # the picker's one entry when no motion fits the skeleton
 
 _RIGHT = re.compile(r"(^right|^r_|[._]r$|_r_|\.r\.)", re.IGNORECASE)  # Anny "upperarm01.R", SMPL-X "right_elbow"
 
@@ -66,35 +67,48 @@ class PoseControls:
     bends: dict[str, float] = field(default_factory=dict)
 
 
-def motion_catalog(skeleton, motion: str | None = None,
-                   subject: str | os.PathLike | None = None) -> dict[str, Callable[[], Motion]]:
-    """The motion picker's entries, label -> loader (called when picked): the shipped motions, a motion
-    file or subject given with ``motion`` (a shipped name only selects), and ``subject``'s test poses."""
+def motion_catalog(skeleton, motion: str | None = None, subject: str | os.PathLike | None = None) -> dict[str, Motion]:
+    """The motion picker's entries, label -> motion in the skeleton's joint order: the shipped motions the
+    skeleton can play (those naming joints it lacks are left out), the motion file or subject folder given
+    with ``motion`` (a shipped name only selects), and ``subject``'s test poses. With none of these, one
+    frame of the rest pose (``REST_MOTION``)."""
     from trioman.runtime.formats.motion import motion_from_spec, motion_from_subject
 
-    catalog: dict[str, Callable[[], Motion]] = {
-        name: (lambda name=name: MOTIONS[name](skeleton, DEFAULT_FRAMES[name]).for_skeleton(skeleton)) for name in MOTIONS
-    }
+    catalog: dict[str, Motion] = {}
+    for name, make in MOTIONS.items():
+        try:
+            catalog[name] = make(skeleton, DEFAULT_FRAMES[name]).for_skeleton(skeleton)
+        except ValueError:  # the motion turns a joint this skeleton lacks
+            continue
     if motion is not None and motion not in MOTIONS:
-        found = motion_from_spec(motion, skeleton)  # checked now: a bad file is an error before the server starts
-        catalog[Path(motion).name or motion] = lambda: found
+        catalog[motion_label(motion)] = motion_from_spec(motion, skeleton)
+    elif motion is not None and motion not in catalog:
+        raise ValueError(f"--motion {motion}: the shipped motion turns joints this avatar's skeleton lacks "
+                         f"({skeleton.num_joints} joints); playable: {list(catalog) or 'none'}")
     if subject is not None:
-        test = motion_from_subject(subject, "test").for_skeleton(skeleton)
-        catalog[f"{SUBJECT_MOTION}: {Path(subject).name}"] = lambda: test
+        catalog[f"{SUBJECT_MOTION}: {Path(subject).name}"] = motion_from_subject(subject, "test").for_skeleton(skeleton)
+    if not catalog:
+        J = skeleton.num_joints
+        catalog[REST_MOTION] = Motion(REST_MOTION, np.zeros((1, J, 3), np.float32), np.zeros((1, 3), np.float32),
+                                      skeleton.joint_names)
     return catalog
 
 
-class Poser:
-    """The pose of one avatar under the viewer's controls; motions are built once, when first picked."""
+def motion_label(spec: str) -> str:
+    """The picker label of a ``--motion`` spec: a shipped name, else the file or folder name."""
+    return spec if spec in MOTIONS else (Path(spec).name or spec)
 
-    def __init__(self, avatar: Avatar, catalog: Mapping[str, Callable[[], Motion]]):
+
+class Poser:
+    """The pose of one avatar under the viewer's controls, over a catalog of motions (``motion_catalog``)."""
+
+    def __init__(self, avatar: Avatar, catalog: Mapping[str, Motion]):
         if not catalog:
             raise ValueError("catalog: no motions to pick from")
         self.avatar = avatar
         self.catalog = dict(catalog)
         self.groups = joint_groups(avatar.skeleton)
         self.right = np.array([is_right(n) for n in avatar.skeleton.joint_names])
-        self._built: dict[str, Motion] = {}
         self.name = next(iter(self.catalog))
 
     @property
@@ -103,17 +117,15 @@ class Poser:
         return tuple(g for g in BEND_AXES if g in self.groups)
 
     def select(self, name: str) -> Motion:
-        """Pick a motion by its label. -> the motion (in the avatar's joint order)."""
+        """Pick a motion by its label. -> the motion."""
         if name not in self.catalog:
             raise ValueError(f"motion: unknown entry {name!r}; have {list(self.catalog)}")
-        if name not in self._built:
-            self._built[name] = self.catalog[name]()
         self.name = name
-        return self._built[name]
+        return self.catalog[name]
 
     @property
     def motion(self) -> Motion:
-        return self.select(self.name)
+        return self.catalog[self.name]
 
     def pose(self, controls: PoseControls) -> tuple[np.ndarray, np.ndarray]:
         """-> pose [J, 3], trans [3] (float64) for the controls."""
