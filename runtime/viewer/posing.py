@@ -1,10 +1,11 @@
 """What the viewer shows, in numpy: the pose its controls ask for and the splat arrays that changed.
 
 A pose is a frame of the selected motion, or the rest pose (zero rotations, zero translation), then bent
-by hand: each joint group of ``trioman.runtime.generator.GROUPS`` has a slider in degrees; every joint
-of the group turns by that angle about the group's world axis (``BEND_AXES``), applied after the
-motion's rotation, and joints on the right side turn by the mirror image (about the x = 0 plane), so a
-slider bends both sides alike. ``SplatDiff`` turns posed Gaussians into the splat arrays a client draws
+by hand: each joint group of ``trioman.runtime.generator.GROUPS`` has a slider in degrees; the group's
+base joints (those whose parent is in another group: a clavicle, an upper leg, the neck) turn by that
+angle about the group's world axis (``BEND_AXES``), applied after the motion's rotation, so the group
+bends at its base and keeps its own shape; joints on the right side turn by the mirror image (about
+the x = 0 plane), so a slider bends both sides alike. ``SplatDiff`` turns posed Gaussians into the splat arrays a client draws
 (centres, covariances, colours, opacities) and reports only the arrays that changed since the last update.
 """
 
@@ -38,8 +39,17 @@ def is_right(name: str) -> bool:
     return bool(_RIGHT.search(name))
 
 
-def bend_pose(pose: np.ndarray, groups: tuple[str, ...], right: np.ndarray, bends: Mapping[str, float]) -> np.ndarray:
-    """pose [J, 3] axis-angle, groups [J] group names, right [J] bool, bends group -> degrees -> [J, 3] float64."""
+def group_bases(groups: tuple[str, ...], parents: np.ndarray) -> np.ndarray:
+    """[J] bool: joints whose parent lies in another group (or that have none)."""
+    parents = np.asarray(parents)
+    names = np.array(groups)
+    return (parents < 0) | (names != names[np.maximum(parents, 0)])
+
+
+def bend_pose(pose: np.ndarray, groups: tuple[str, ...], bases: np.ndarray, right: np.ndarray,
+              bends: Mapping[str, float]) -> np.ndarray:
+    """pose [J, 3] axis-angle, groups [J] group names, bases [J] bool (``group_bases``), right [J] bool, bends
+    group -> degrees -> [J, 3] float64."""
     unknown = sorted(set(bends) - set(BEND_AXES))
     if unknown:
         raise ValueError(f"bends: unknown group(s) {unknown}; expected keys from {list(BEND_AXES)}")
@@ -47,7 +57,7 @@ def bend_pose(pose: np.ndarray, groups: tuple[str, ...], right: np.ndarray, bend
     for group, degrees in bends.items():
         if not np.isfinite(degrees) or abs(degrees) > MAX_BEND:
             raise ValueError(f"bends[{group!r}]: must be finite degrees in [-{MAX_BEND:g}, {MAX_BEND:g}], got {degrees}")
-        joints = np.flatnonzero(np.array(groups) == group)
+        joints = np.flatnonzero((np.array(groups) == group) & bases)
         if degrees == 0 or len(joints) == 0:
             continue
         aa = np.zeros((len(joints), 3))
@@ -108,6 +118,7 @@ class Poser:
         self.avatar = avatar
         self.catalog = dict(catalog)
         self.groups = joint_groups(avatar.skeleton)
+        self.bases = group_bases(self.groups, avatar.skeleton.parents)
         self.right = np.array([is_right(n) for n in avatar.skeleton.joint_names])
         self.name = next(iter(self.catalog))
 
@@ -137,7 +148,7 @@ class Poser:
             if not 0 <= controls.frame < m.num_frames:
                 raise ValueError(f"frame: {controls.frame} is out of range for {self.name!r} ({m.num_frames} frames)")
             pose, trans = m.pose[controls.frame], m.trans[controls.frame]
-        return bend_pose(pose, self.groups, self.right, controls.bends), np.asarray(trans, dtype=np.float64)
+        return bend_pose(pose, self.groups, self.bases, self.right, controls.bends), np.asarray(trans, dtype=np.float64)
 
     def gaussians(self, controls: PoseControls) -> Gaussians:
         pose, trans = self.pose(controls)

@@ -8,7 +8,7 @@ from tests.runtime.viewer.helpers import make_avatar
 from trioman.runtime.avatar import Gaussians
 from trioman.runtime.motions import Motion
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix
-from trioman.runtime.viewer.posing import PoseControls, Poser, SplatDiff, bend_pose, covariances, is_right
+from trioman.runtime.viewer.posing import PoseControls, Poser, SplatDiff, bend_pose, covariances, group_bases, is_right
 
 
 def test_right_side_names():
@@ -16,21 +16,23 @@ def test_right_side_names():
                                   "hand_r", "root")] == [True, True, True, False, False, False, True, False]
 
 
-def test_a_bend_turns_each_joint_of_its_group_and_mirrors_the_right_side():
-    groups = ("root", "arms", "arms", "legs")
-    right = np.array([False, False, True, False])
-    base = np.zeros((4, 3))
+def test_a_bend_turns_the_base_joints_of_its_group_and_mirrors_the_right_side():
+    groups = ("root", "arms", "arms", "legs", "arms")
+    bases = group_bases(groups, np.array([-1, 0, 0, 0, 1]))
+    np.testing.assert_array_equal(bases, [True, True, True, True, False])  # joint 4 hangs from an arm joint
+    right = np.array([False, False, True, False, False])
+    base = np.zeros((5, 3))
     base[1] = [0.0, 0.0, 0.4]
-    out = bend_pose(base, groups, right, {"arms": 30.0})
+    out = bend_pose(base, groups, bases, right, {"arms": 30.0})
     a = np.deg2rad(30.0)
     np.testing.assert_allclose(axis_angle_to_matrix(out[1]), axis_angle_to_matrix([0, a, 0]) @ axis_angle_to_matrix(base[1]),
                                atol=1e-12)
     np.testing.assert_allclose(out[2], [0, -a, 0], atol=1e-12)  # mirrored about x = 0
-    np.testing.assert_array_equal(out[[0, 3]], 0)
+    np.testing.assert_array_equal(out[[0, 3, 4]], 0)
     with pytest.raises(ValueError, match=r"bends: unknown group\(s\) \['wings'\]"):
-        bend_pose(base, groups, right, {"wings": 1.0})
+        bend_pose(base, groups, bases, right, {"wings": 1.0})
     with pytest.raises(ValueError, match=r"bends\['arms'\]: must be finite degrees in \[-180, 180\], got nan"):
-        bend_pose(base, groups, right, {"arms": float("nan")})
+        bend_pose(base, groups, bases, right, {"arms": float("nan")})
 
 
 def test_rest_pose_and_frames(tmp_path):
