@@ -130,6 +130,22 @@ class AvatarViewer:
             self._show_stats()
             return changed
 
+    def time_updates(self, n: int) -> dict[str, float]:
+        """Time ``n`` pose updates over the motion's frames (a played clip). -> median ms: posing (FK + LBS +
+        the pose-dependent graph), packing (the changed arrays into the buffer, queued to the clients), total."""
+        if n < 1:
+            raise ValueError(f"--time: must be >= 1, got {n}")
+        pose, send = [], []
+        frames = self.poser.motion.num_frames
+        for k in range(n):
+            self.controls.frame = (self.controls.frame + 1) % frames if frames > 1 else 0
+            self.controls.bends = {} if frames > 1 else {"root": float(k % 2)}  # a one-frame motion: turn instead
+            self.refresh()
+            pose.append(self.last_update["pose_ms"])
+            send.append(self.last_update["send_ms"])
+        p, q = float(np.median(pose)), float(np.median(send))
+        return {"pose_ms": p, "send_ms": q, "total_ms": float(np.median(np.add(pose, send)))}
+
     def _run(self) -> None:
         """The worker: refresh when a control changed; while playing, advance one frame per period."""
         next_at = time.perf_counter()

@@ -26,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1, this machine only)")
     parser.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free port)")
     parser.add_argument("--fps", type=float, default=None, help="playback rate (default: the motion's)")
+    parser.add_argument("--time", type=int, default=None, metavar="N",
+                        help="time N pose updates over the motion's frames, print the median cost and exit")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,6 +41,12 @@ def run(args: argparse.Namespace) -> int:
                          host=args.host, port=args.port, fps=args.fps)
     try:
         avatar = viewer.poser.avatar
+        if args.time is not None:
+            t = viewer.time_updates(args.time)
+            print(f"view: {avatar.num_gaussians:,} Gaussians ({'with' if avatar.pose_dependent else 'no'} pose-dependent "
+                  f"terms), {args.time} updates of {viewer.poser.name!r}: {t['total_ms']:.1f} ms a pose update "
+                  f"(median; posing {t['pose_ms']:.1f}, packing and queueing {t['send_ms']:.1f})")
+            return 0
         print(f"view: {avatar.num_gaussians:,} Gaussians of {avatar.root}, motion {viewer.poser.name!r}; "
               f"{viewer.last_update['pose_ms']:.0f} ms a pose update")
         print(f"view: open {viewer.url} in a browser (Ctrl-C stops)", flush=True)
