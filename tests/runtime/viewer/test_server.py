@@ -3,6 +3,7 @@ arrays that changed (right shapes, right bytes), it shuts down cleanly, and bad 
 a busy port) are one-line errors. Without viser these tests skip."""
 
 import socket
+import time
 from pathlib import Path
 import urllib.request
 
@@ -158,3 +159,25 @@ def test_serves_and_poses_without_torch(avatar_dir):
         print("ok")
     """, block_torch=True)
     assert proc.returncode == 0 and "ok" in proc.stdout, proc.stderr
+
+
+def test_play_advances_the_frames_of_a_motion_file(avatar_dir, tmp_path):
+    from trioman.runtime.formats.motion import save_motion
+    from trioman.runtime.motions import Motion
+
+    names = ("root", "mid", "tip")
+    pose = np.zeros((5, 3, 3), np.float32)
+    pose[:, 1, 0] = np.linspace(0, 1, 5)
+    save_motion(tmp_path / "nod.npz", Motion("nod", pose, np.zeros((5, 3), np.float32), names, 20.0))
+    v = open_viewer(avatar_dir, motion=str(tmp_path / "nod.npz"), port=0, fps=50.0)
+    try:
+        assert v.poser.name == "nod.npz" and v.poser.motion.num_frames == 5
+        v.playing = True
+        seen = set()
+        start = time.perf_counter()
+        while len(seen) < 3 and time.perf_counter() - start < 20:
+            seen.add(v.controls.frame)
+            time.sleep(0.01)
+        assert len(seen) >= 3 and int(v._frame_slider.value) in range(5)
+    finally:
+        v.stop()
