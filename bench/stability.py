@@ -6,26 +6,33 @@ worst error and whether every output stayed finite.
   faint Gaussians and needles from 5 cm in front of the camera (``bench.scenes.extreme_scene``), half the
   Gaussians behind the camera, opacities at 1/255 and at 1, and a scene 1e4 times larger seen from 1e4
   times farther. Error: max abs difference of RGB and alpha over the image.
-- Refiner and Examiner: the torch models (randomised weights) in float32 against float64 on extreme
-  images (constant black, white, 1e-8, a one-pixel checkerboard, saturated noise).
+- Refiner and Examiner: tiny models (``tiny_models``: the arithmetic, not the capacity, is under test)
+  with randomised weights on extreme images (constant black, white and 1e-8, uniform noise, one bright
+  pixel, a one-pixel checkerboard, saturated noise, saturated colour bars): the torch models in float32
+  against float64, and their ONNX variants as ``trioman export onnx`` writes them (fp32, fp16, int8) run
+  by the runtime, fp32 against torch float32 and fp16/int8 against fp32. Error: max abs difference of
+  the refined images, of the scores.
 - Rotations and FK + LBS: axis-angle -> matrix (numpy float64 and float32, torch float32) against scipy's
   matrix exponential in float64 at angles near pi, at pi and tiny; the skinning transforms of a chain of
   joints all rotated by those angles (numpy and torch) against the chain composed from the exponentials.
   Error: max abs difference of the matrix entries (and of the translations, metres, for FK).
-- Training: the avatar loop on a small generated subject at the preset learning rates and at 100x them.
-  Error: the largest loss logged; finite: every logged loss finite and a run that ended (a non-finite
-  loss stops the loop, which the row reports).
+- Training: the avatar loop (quick preset, a small generated subject), the Refiner and the Examiner
+  loops (the tiny models, synthetic frames) at their default learning rates and at 100x them, with a
+  checkpoint every step. Error: the largest finite loss of the steps that updated; finite: the weights
+  stayed finite; each row also counts the steps the non-finite guard skipped and gives the message of a
+  run that stopped (docs/design.md, "Conventions": training loops).
 
 ``--size`` scales nothing here; ``--iterations`` is the training cases' steps (default 30) and
-``--seeds`` the extreme scenes drawn (default 2). The Refiner's and Examiner's ONNX variants (fp32, fp16,
-int8) on extreme images are not in this report yet.
+``--seeds`` the extreme scenes drawn (default 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
 from pathlib import Path
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -34,11 +41,14 @@ from trioman.bench.common import machine
 KEYS = ("means", "quats", "scales", "opacities", "colors", "viewmat", "K")
 ANGLES = {"pi - 1e-3": math.pi - 1e-3, "pi - 1e-6": math.pi - 1e-6, "pi": math.pi, "pi + 1e-6": math.pi + 1e-6,
           "1e-4": 1e-4, "1e-8": 1e-8, "1e-12": 1e-12, "0": 0.0}
+MODEL_SIZE = 32  # px, the tiny Refiner's and Examiner's input side
+LR_FACTORS = (1, 100)  # the training cases' learning rates, times each loop's default
 
 
-def _row(group: str, case: str, method: str, error: float, finite: bool, note: str = "") -> dict:
-    return {"group": group, "case": case, "method": method, "worst_error": float(error), "finite": bool(finite),
-            "note": note}
+def _row(group: str, case: str, method: str, error: float, finite: bool | None, note: str = "", **extra: Any) -> dict:
+    """One report row; ``finite`` None: nothing was run (the note says why)."""
+    return {"group": group, "case": case, "method": method, "worst_error": float(error),
+            "finite": None if finite is None else bool(finite), "note": note, **extra}
 
 
 def render_scenes(seeds: int) -> dict[str, dict]:
@@ -137,14 +147,36 @@ def gradient_rows(seeds: int = 2, directions: int = 3, eps: float = 1e-6) -> lis
 
 
 def extreme_images(size: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """[3, size, size] images in [0, 1] that networks rarely see: constant black, white and 1e-8,
-    a one-pixel checkerboard, saturated noise."""
+    """[3, size, size] images in [0, 1] that networks rarely see: constant black, white and 1e-8, uniform
+    noise, one bright pixel on black, a one-pixel checkerboard, saturated noise (each channel 0 or 1) and
+    saturated colour bars (the eight corners of the RGB cube)."""
     rng = np.random.default_rng(seed)
     i, j = np.indices((size, size))
+    pixel = np.zeros((3, size, size))
+    pixel[:, size // 2, size // 2] = 1.0
+    corners = ((np.arange(8)[:, None] >> np.arange(3)) & 1).astype(np.float64)  # [8, 3]
     return {"black": np.zeros((3, size, size)), "white": np.ones((3, size, size)),
             "constant 1e-8": np.full((3, size, size), 1e-8),
+            "uniform noise": rng.uniform(size=(3, size, size)),
+            "one bright pixel": pixel,
             "one-pixel checkerboard": np.broadcast_to((i + j) % 2, (3, size, size)).astype(np.float64),
-            "saturated noise": (rng.uniform(size=(3, size, size)) > 0.5).astype(np.float64)}
+            "saturated noise": (rng.uniform(size=(3, size, size)) > 0.5).astype(np.float64),
+            "saturated colour bars": np.ascontiguousarray(corners[j * 8 // size].transpose(2, 0, 1))}
+
+
+def tiny_models() -> tuple[Any, Any]:
+    """(Refiner, Examiner) at MODEL_SIZE px, initialised from seed 0: a tex+geo Refiner with a 2-level U-Net
+    (widths 8..32) and an Examiner of examiner_nano's layout."""
+    import torch
+
+    from trioman.toolkit.examiner import create_examiner, examiner_config
+    from trioman.toolkit.refiner import RefinerConfig, create_refiner
+
+    refiner = RefinerConfig(image_size=MODEL_SIZE, latent_channels=4, latent_downsample=2, vae_widths=(8, 16),
+                            unet_widths=(16, 32), attention_heads=2, norm_groups=4, conditions="tex+geo")
+    with torch.random.fork_rng(devices=[]):  # the Examiner draws from the global RNG; keep it
+        torch.manual_seed(0)
+        return create_refiner(refiner, seed=0), create_examiner(examiner_config("examiner_nano", img_size=MODEL_SIZE))
 
 
 def _randomised(model, seed: int = 0, std: float = 0.05):
@@ -159,33 +191,71 @@ def _randomised(model, seed: int = 0, std: float = 0.05):
     return model.eval()
 
 
-def model_rows(size: int = 64) -> list[dict]:
-    """The Refiner (default config, tex+geo) and the Examiner (examiner_nano), randomised weights, in float32
-    against the same weights in float64 on extreme images. Error: max abs difference of the refined
-    images, of the scores."""
+def _max_diff(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| in float64; inf when either holds a NaN or Inf."""
+    d = np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64))
+    return float(d.max()) if np.isfinite(d).all() else math.inf
+
+
+def model_rows(out: Path) -> list[dict]:
+    """The tiny Refiner and Examiner (randomised weights) on the extreme images: torch float32 against
+    float64, one row per image; then their ONNX variants (``onnx_rows``, exported into out/stability_onnx)."""
     import copy
 
     import torch
 
-    from trioman.toolkit.examiner import create_examiner, examiner_config
-    from trioman.toolkit.refiner import create_refiner
-
-    refiner = _randomised(create_refiner())
-    examiner_cfg = examiner_config("examiner_nano")
-    examiner = _randomised(create_examiner(examiner_cfg))
+    refiner, examiner = tiny_models()
+    models = {"Refiner (tex+geo)": (_randomised(refiner), 3), "Examiner (examiner_nano layout)": (_randomised(examiner), 2)}
+    images = extreme_images(MODEL_SIZE)
     rows = []
-    for name, (model, side, views) in {"Refiner (tex+geo)": (refiner, size, 3),
-                                       "Examiner (examiner_nano)": (examiner, examiner_cfg.img_size, 2)}.items():
+    for name, (model, views) in models.items():
         model64 = copy.deepcopy(model).double()
-        for label, image in extreme_images(side).items():
+        for label, image in images.items():
             x = torch.from_numpy(np.ascontiguousarray(image))[None]
             with torch.no_grad():
-                y32 = model(*[x.float()] * views)
-                y64 = model64(*[x] * views)
-            y32, y64 = (np.asarray(y.detach().numpy() if hasattr(y, "detach") else y, np.float64) for y in (y32, y64))
+                y32 = model(*[x.float()] * views).numpy()
+                y64 = model64(*[x] * views).numpy()
             rows.append(_row("Refiner and Examiner, float32 vs float64", f"{name}, {label}", "torch float32",
-                             np.abs(y32 - y64).max(), np.isfinite(y32).all(),
-                             f"{side}x{side}, output range [{y32.min():.3g}, {y32.max():.3g}]"))
+                             _max_diff(y32, y64), np.isfinite(y32).all(),
+                             f"{MODEL_SIZE}x{MODEL_SIZE}, output range [{y32.min():.3g}, {y32.max():.3g}]"))
+    return rows + onnx_rows(models, images, out / "stability_onnx")
+
+
+def onnx_rows(models: dict[str, tuple[Any, int]], images: dict[str, np.ndarray], folder: Path) -> list[dict]:
+    """The Refiner and the Examiner (``models``: name -> (torch module, inputs), in that order) exported by
+    ``export_onnx`` (fp32, fp16, int8; synthetic calibration and gate frames) into ``folder`` and run by the
+    runtime on each of ``images`` alone (batch 1: dynamic int8 quantizes each batch with its own range).
+    One row per model and variant: fp32 against torch float32, fp16 and int8 against fp32, the worst
+    image named. A variant its export gate rejected gets a row saying so."""
+    import torch
+
+    from trioman.export.onnx_models import VARIANTS, export_onnx, file_name
+    from trioman.runtime.models import load_model
+
+    (refiner, _), (examiner, _) = models.values()
+    report = export_onnx(refiner=refiner, examiner=examiner, out=folder, variants=VARIANTS, size=MODEL_SIZE,
+                         overwrite=True, calibration_frames=2, gate_frames=2)
+    group = "Refiner and Examiner, ONNX variants on extreme images"
+    rows = []
+    for (name, (model, views)), kind in zip(models.items(), ("refiner", "examiner")):
+        xs = [np.ascontiguousarray(image, np.float32)[None] for image in images.values()]
+        with torch.no_grad():
+            outputs = {"torch float32": [model(*[torch.from_numpy(x)] * views).numpy() for x in xs]}
+        for precision in VARIANTS:  # fp32 first: the reference of fp16 and int8
+            method = f"onnxruntime {precision} vs {'torch float32' if precision == 'fp32' else 'fp32'}"
+            if file_name(kind, precision) not in report["files"]:
+                gate = report["rejected"][file_name(kind, precision)]["gate"]
+                rows.append(_row(group, name, method, math.nan, None, f"not exported: rejected by its gate ({gate})"))
+                continue
+            session = load_model(folder / file_name(kind, precision), kind)
+            ys = outputs[f"onnxruntime {precision}"] = [session.run(*[x] * views) for x in xs]
+            ref = outputs["torch float32" if precision == "fp32" else "onnxruntime fp32"]
+            errors = [_max_diff(y, r) for y, r in zip(ys, ref)]
+            worst = int(np.argmax(errors))
+            y = np.concatenate([np.ravel(v) for v in ys])
+            rows.append(_row(group, name, method, errors[worst], np.isfinite(y).all(),
+                             f"worst on {list(images)[worst]}; {len(xs)} images at {MODEL_SIZE}x{MODEL_SIZE}, "
+                             f"outputs in [{np.nanmin(y):.3g}, {np.nanmax(y):.3g}]"))
     return rows
 
 
@@ -257,38 +327,107 @@ def fk_rows(joints: int = 6) -> list[dict]:
     return rows
 
 
-def training_rows(out: Path, iterations: int = 30, frames: int = 4, size: int = 32) -> list[dict]:
+class LoopOutcome(NamedTuple):
+    """How one training run went (``loop_outcome``)."""
+
+    result: Any  # what the loop returned; None when it stopped
+    stopped: str  # the message of a run that stopped ("" when it ended)
+    skipped: int  # steps the non-finite guard skipped
+    weights_finite: bool  # the weights after the last step that ran are finite
+
+
+_SKIPPED_IN_ALL = re.compile(r"\((\d+) skipped in all\)")  # the guard's stop message (toolkit/train/guard.py)
+
+
+def loop_outcome(train: Callable[[], Any], run: Path) -> LoopOutcome:
+    """Run ``train()``, a training loop that checkpoints into ``run`` after every step, and read how it went.
+
+    Every checkpoint holds the guard's count of skipped steps and is refused (NonFiniteError) when the
+    weights are not finite. So: a run that ended had finite weights and its last checkpoint's count; a
+    run the guard stopped (its message counts the skipped steps "in all") kept the finite weights of its
+    last update; a refused checkpoint means non-finite weights, and the step that made them updated, so
+    the previous checkpoint's count is the run's."""
+    from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint
+    from trioman.toolkit.train.guard import NonFiniteError
+
+    def counted() -> int:
+        ckpt = latest_checkpoint(run)
+        return 0 if ckpt is None else int(load_checkpoint(ckpt).get("skipped", 0))
+
+    try:
+        result = train()
+    except NonFiniteError as err:
+        message = str(err)
+        by_guard = _SKIPPED_IN_ALL.search(message)
+        if by_guard:
+            return LoopOutcome(None, message, int(by_guard.group(1)), True)
+        return LoopOutcome(None, message, counted(), False)
+    return LoopOutcome(result, "", counted(), True)
+
+
+def _training_row(loop: str, factor: int, lr: float, outcome: LoopOutcome, losses: list[float]) -> dict:
+    finite = [v for v in losses if math.isfinite(v)]
+    how = f"stopped: {outcome.stopped.splitlines()[0]}" if outcome.stopped else f"ended; last loss {finite[-1]:.4f}" if finite else "ended"
+    return _row("training loops at 1x and 100x the default learning rate", f"{loop}, learning rate x{factor} ({lr:g})",
+                "torch float32", max(finite) if finite else math.nan, outcome.weights_finite,
+                f"{len(losses)} losses, {outcome.skipped} steps skipped by the guard; {how}",
+                skipped=outcome.skipped, stopped=outcome.stopped)
+
+
+def avatar_training_rows(out: Path, iterations: int, frames: int = 4, size: int = 32) -> list[dict]:
+    """The avatar loop (quick preset, every learning rate scaled) on a small generated subject. Losses:
+    the train log's."""
     import csv
     import dataclasses
     import shutil
 
     from trioman.bench.frames import write_subject
     from trioman.toolkit.train.config import preset
+    from trioman.toolkit.train.loop import train
 
     subject = out / "stability_subject"
     if not (subject / "subject.json").exists():
         shutil.rmtree(subject, ignore_errors=True)
         write_subject(subject, frames, size)
     rows = []
-    for factor in (1, 100):
-        from trioman.toolkit.train.loop import train
-
-        cfg = preset("quick", iterations=iterations, checkpoint_every=iterations)
+    for factor in LR_FACTORS:
+        cfg = preset("quick", iterations=iterations, checkpoint_every=1)
         cfg = dataclasses.replace(cfg, lr=cfg.lr * factor, point_color_lr=cfg.point_color_lr * factor)
         run = out / f"stability_train_lr_x{factor}"
         shutil.rmtree(run, ignore_errors=True)
-        note = ""
-        try:
-            train(subject, run, cfg, progress=False)
-            ended = True
-        except FloatingPointError as err:
-            ended, note = False, str(err).splitlines()[0]
+        outcome = loop_outcome(lambda cfg=cfg, run=run: train(subject, run, cfg, progress=False), run)
         with (run / "train_log.csv").open() as f:
-            losses = np.array([float(r["loss"]) for r in csv.DictReader(f)])
-        finite = ended and losses.size > 0 and bool(np.isfinite(losses).all())
-        worst = float(np.nanmax(np.where(np.isfinite(losses), losses, np.nan))) if np.isfinite(losses).any() else math.inf
-        rows.append(_row("avatar training loop", f"learning rates x{factor} ({cfg.lr:g})", "torch float32", worst, finite,
-                         note or f"{losses.size} steps logged, last loss {losses[-1]:.4f}" if losses.size else note))
+            losses = [float(r["loss"]) for r in csv.DictReader(f)]
+        rows.append(_training_row("avatar", factor, cfg.lr, outcome, losses))
+    return rows
+
+
+def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict]:
+    """The Refiner and the Examiner loops on the tiny models and synthetic frames (one fixed batch).
+    Losses: those the loop returns (none when it stopped)."""
+    import dataclasses
+    import shutil
+
+    from trioman.export.onnx_models import synthetic_frames
+    from trioman.toolkit.examiner import ExaminerTrainConfig, train_examiner
+    from trioman.toolkit.model_training import examiner_batch, refiner_batch
+    from trioman.toolkit.refiner import RefinerTrainConfig, train_refiner
+
+    frames = synthetic_frames(batch, (MODEL_SIZE, MODEL_SIZE), seed=0)
+    loops = {
+        "Refiner": (RefinerTrainConfig(steps=iterations, checkpoint_every=1),
+                    lambda cfg, run: train_refiner(tiny_models()[0], lambda step: refiner_batch(frames), cfg, run)),
+        "Examiner": (ExaminerTrainConfig(steps=iterations, checkpoint_every=1),
+                     lambda cfg, run: train_examiner(tiny_models()[1], [examiner_batch(frames)], cfg, run)),
+    }
+    rows = []
+    for loop, (default, fit) in loops.items():
+        for factor in LR_FACTORS:
+            cfg = dataclasses.replace(default, lr=default.lr * factor)
+            run = out / f"stability_train_{loop.lower()}_lr_x{factor}"
+            shutil.rmtree(run, ignore_errors=True)
+            outcome = loop_outcome(lambda fit=fit, cfg=cfg, run=run: fit(cfg, run), run)
+            rows.append(_training_row(loop, factor, cfg.lr, outcome, [] if outcome.result is None else outcome.result.losses))
     return rows
 
 
@@ -299,21 +438,24 @@ def bench_stability(args: argparse.Namespace) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seeds = args.seeds or 2
-    rows = renderer_rows(seeds) + gradient_rows(seeds) + model_rows() + rotation_rows() + fk_rows() + training_rows(out, iterations=args.iterations or 30)
+    iterations = args.iterations or 30
+    rows = (renderer_rows(seeds) + gradient_rows(seeds) + model_rows(out) + rotation_rows() + fk_rows()
+            + avatar_training_rows(out, iterations) + model_training_rows(out, iterations))
     return {"target": "stability", "machine": machine(), "torch_threads": torch.get_num_threads(), "rows": rows,
-            "all_finite": all(r["finite"] for r in rows)}
+            "all_finite": all(r["finite"] is not False for r in rows)}
 
 
 def stability_markdown(r: dict) -> str:
     lines = ["# trioman bench stability", "", f"Machine: {r['machine']}; torch uses {r['torch_threads']} threads.",
-             "Worst error: max abs difference against the float64 reference of the group (renderers: RGB and alpha; "
-             "rotations and FK: matrix entries, translations in metres); training: the largest logged loss.", ""]
+             "Worst error: max abs difference against the reference of the group (renderers: the float64 oracle, RGB "
+             "and alpha; rotations and FK: matrix entries, translations in metres; Refiner and Examiner: refined images "
+             "and scores); training: the largest finite loss, finite: the weights.", ""]
     group = None
     for row in r["rows"]:
         if row["group"] != group:
             group = row["group"]
             lines += ["", f"## {group}", "", "| case | method | worst error | finite | note |", "|---|---|---|---|---|"]
-        lines.append(f"| {row['case']} | {row['method']} | {row['worst_error']:.2e} | "
-                     f"{'yes' if row['finite'] else '**no**'} | {row['note']} |")
+        finite = "n/a" if row["finite"] is None else "yes" if row["finite"] else "**no**"
+        lines.append(f"| {row['case']} | {row['method']} | {row['worst_error']:.2e} | {finite} | {row['note']} |")
     lines += ["", f"Every output finite: {'yes' if r['all_finite'] else 'no'}.", ""]
     return "\n".join(lines)
