@@ -78,7 +78,10 @@ def bench_renderer_rows(scene: dict, size: int, repeats: int, oracle_size: int =
     return rows
 
 
-def _refiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads: int | None) -> list[dict]:
+def bench_refiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads: int | None) -> list[dict]:
+    """One row per Refiner variant: torch eager (the reference) and the ONNX files of ``onnx_dir`` (fp32 at each
+    optimisation level, int8, fp16; a missing one noted as rejected) on ``frames`` (TripletSet.evaluation):
+    ms per frame (batch 1, onnxruntime ``threads``), max abs error against torch, PSNR against the GT."""
     from trioman.runtime.models import RefinerModel
     from trioman.toolkit.model_training import refiner_batch
     from trioman.toolkit.refiner import load_refiner, refiner_inputs
@@ -108,7 +111,9 @@ def _refiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads: int
     return rows
 
 
-def _examiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads: int | None) -> list[dict]:
+def bench_examiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads: int | None) -> list[dict]:
+    """One row per Examiner variant, as ``bench_refiner_rows``, on the (real, reference) and (coarse, reference)
+    pairs of ``frames``: max abs score error against torch and keep/drop agreement with it."""
     from trioman.runtime.models import ExaminerModel
     from trioman.toolkit.examiner import load_examiner
     from trioman.toolkit.model_training import nchw
@@ -185,8 +190,8 @@ def bench_deploy(args: argparse.Namespace) -> dict:
     export_s = time.perf_counter() - t
     threads = args.threads
     rows = bench_renderer_rows(avatar_scene(args.avatar_run), args.size, args.repeats)
-    rows += _refiner_rows(ckpts["refiner"], onnx_dir, frames, args.repeats, threads)
-    rows += _examiner_rows(ckpts["examiner"], onnx_dir, frames, args.repeats, threads)
+    rows += bench_refiner_rows(ckpts["refiner"], onnx_dir, frames, args.repeats, threads)
+    rows += bench_examiner_rows(ckpts["examiner"], onnx_dir, frames, args.repeats, threads)
     report = {"rows": rows, "refiner": str(ckpts["refiner"]), "examiner": str(ckpts["examiner"]), "model_size": size,
               "frames": len(frames.gt), "export": export, "export_s": export_s, "torch_threads": torch.get_num_threads(),
               "ort_threads": threads, "render_size": args.size}

@@ -14,7 +14,7 @@ from trioman.bench.scenes import random_scene  # noqa: E402
 from tests.toolkit.test_model_training import S, corpus  # noqa: E402,F401 (fixture)
 from trioman.export.onnx_models import export_onnx  # noqa: E402
 from trioman.bench.deploy import (  # noqa: E402
-    _examiner_rows, _refiner_rows, bench_renderer_rows, deploy_markdown, scatter_plot,
+    bench_examiner_rows, bench_refiner_rows, bench_renderer_rows, deploy_markdown, scatter_plot,
 )
 from trioman.bench.models import bench_models  # noqa: E402
 from trioman.toolkit.corpus import triplet_paths  # noqa: E402
@@ -37,8 +37,8 @@ def test_model_rows_cover_every_variant(trained, corpus, tmp_path):  # noqa: F81
     export_onnx(refiner=trained["refiner"], examiner=trained["examiner"], out=onnx, variants=("fp32", "int8", "fp16"),
                 calibration=triplet_paths(corpus)["train"], size=S)
     frames = TripletSet.load(triplet_paths(corpus)["heldout"]).evaluation("test")
-    rows = _refiner_rows(trained["refiner"], onnx, frames, repeats=1, threads=1)
-    rows += _examiner_rows(trained["examiner"], onnx, frames, repeats=1, threads=1)
+    rows = bench_refiner_rows(trained["refiner"], onnx, frames, repeats=1, threads=1)
+    rows += bench_examiner_rows(trained["examiner"], onnx, frames, repeats=1, threads=1)
     variants = [r["variant"] for r in rows]
     for comp in ("refiner", "examiner"):
         assert sum(v.startswith("onnxruntime fp32") for r, v in zip(rows, variants) if r["component"] == comp) == 4
