@@ -58,8 +58,7 @@ from torch import nn
 from trioman import __version__
 from trioman.runtime import models as rt
 from trioman.runtime.formats.avatar import sha256_file
-from trioman.runtime.formats.common import _move_into_place
-from trioman.runtime.image_io import fsync_dir, temp_sibling
+from trioman.runtime.image_io import atomic_folder, check_folder_target, fsync_dir, fsync_file, temp_sibling, write_synced
 from trioman.runtime.metrics import psnr
 
 OPSET = 17
@@ -402,12 +401,10 @@ def _save(proto: onnx.ModelProto, path: Path, external: bool = False) -> None:
     if external:
         onnx.save_model(proto, str(path), save_as_external_data=True, all_tensors_to_one_file=True,
                         location=external_data_path(path).name, size_threshold=1024)
+        for p in (path, external_data_path(path)):
+            fsync_file(p)
     else:
-        with open(path, "wb") as f:
-            f.write(proto.SerializeToString())
-    for p in (path, external_data_path(path)) if external else (path,):
-        with open(p, "rb+") as f:
-            os.fsync(f.fileno())
+        write_synced(path, proto.SerializeToString())
 
 
 # --------------------------------------------------------------------------------------------------
@@ -903,10 +900,7 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
         raise ExportError("out: the output folder is required (--out)")
     variants = _check_variants(variants)
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise FileExistsError(f"{out}: folder exists and is not empty (pass overwrite=True / --overwrite to replace it)")
+    check_folder_target(out, overwrite)
     calibration = [Path(p) for p in calibration] if calibration else None
     for k, v in (("calibration_frames", calibration_frames), ("gate_frames", gate_frames)):
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
@@ -929,10 +923,7 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
 
         say(f"reading {len(calibration)} triplet file(s)")
         triplets = TripletSet.load(calibration)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_sibling(out)
-    os.mkdir(tmp)
-    try:
+    with atomic_folder(out, overwrite) as tmp:
         for kind, what in (("refiner", refiner), ("examiner", examiner)):
             if what is None:
                 continue
@@ -943,16 +934,7 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
             for name, entry in _export_into(job, tmp, variants).items():
                 report["files" if entry["status"] == "written" else "rejected"][name] = entry
         report["seconds"] = round(time.perf_counter() - t0, 3)
-        with open(tmp / EXPORT_JSON, "w", encoding="utf-8") as f:
-            f.write(json.dumps(_finite(report), indent=2, allow_nan=False) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        fsync_dir(tmp)
-        _move_into_place(tmp, out, overwrite)
-        fsync_dir(out.parent)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        write_synced(tmp / EXPORT_JSON, (json.dumps(_finite(report), indent=2, allow_nan=False) + "\n").encode("utf-8"))
     report["out"] = str(out)
     return report
 

@@ -1,9 +1,11 @@
-"""Image and video I/O with atomic writes.
+"""Image and video I/O, and the atomic writes of every module.
 
 In numpy an image is float32 in [0, 1]: RGB [H, W, 3] or gray [H, W], HWC. On disk it is an 8-bit
 PNG (OpenCV stores BGR; the conversion happens here and nowhere else). Every write goes to a
 temporary file in the destination folder, is fsync'ed and renamed into place, so a reader never sees
-a half-written file and an interrupted write leaves nothing behind.
+a half-written file and an interrupted write leaves nothing behind: one file with ``atomic_path`` (and
+``atomic_write_bytes``/``atomic_write_text``), a folder of files with ``atomic_folder``, whose files are
+written with ``write_synced``.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import secrets
 import shutil
 import struct
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import BinaryIO, Callable, Iterable, Iterator
 
 import cv2
 import numpy as np
@@ -46,7 +48,8 @@ def fsync_dir(path: PathLike) -> None:
         os.close(fd)
 
 
-def _fsync_file(path: PathLike) -> None:
+def fsync_file(path: PathLike) -> None:
+    """fsync a written file (one written by a library that does not, before it is renamed into place)."""
     fd = os.open(os.fspath(path), os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -129,7 +132,7 @@ def atomic_path(path: PathLike, suffix: str | None = None) -> Iterator[Path]:
     try:
         with naming_os_errors(path, tmp_path):
             yield tmp_path
-            _fsync_file(tmp_path)
+            fsync_file(tmp_path)
             os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -148,6 +151,66 @@ def atomic_write_bytes(path: PathLike, data: bytes) -> None:
 def atomic_write_text(path: PathLike, text: str) -> None:
     """Write UTF-8 ``text`` to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_synced(path: PathLike, data: bytes | Callable[[BinaryIO], None]) -> None:
+    """Write the file ``path`` (``data``: its bytes, or a function that writes into the open file) and fsync
+    it; an OSError names ``path``. For the files of an :func:`atomic_folder`; a file alone is written with
+    :func:`atomic_path`."""
+    with naming_os_errors(path), open(path, "wb") as f:
+        if callable(data):
+            data(f)
+        else:
+            f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def check_folder_target(path: PathLike, overwrite: bool) -> None:
+    """FileExistsError unless a new folder may take ``path``: nothing there, an empty folder, or a folder
+    and ``overwrite``."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"{path}: exists and is not a folder")
+    if path.is_dir() and any(path.iterdir()) and not overwrite:
+        raise FileExistsError(f"{path}: folder exists and is not empty (pass overwrite=True / --overwrite to replace it)")
+
+
+@contextlib.contextmanager
+def atomic_folder(path: PathLike, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a new temporary folder next to ``path`` (its parents created); on success fsync every folder in
+    it and rename it onto ``path``, whose old folder (:func:`check_folder_target`, checked before and at the
+    rename) is removed once the new one is in place. If the block raises, the temporary folder is removed
+    and ``path`` is left untouched. Its files are written with :func:`write_synced` (or fsync'ed)."""
+    path = Path(path)
+    check_folder_target(path, overwrite)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_sibling(path)
+    os.mkdir(tmp)
+    try:
+        yield tmp
+        for folder, _, _ in os.walk(tmp, topdown=False):
+            fsync_dir(folder)
+        check_folder_target(path, overwrite)  # a folder may have appeared while the block wrote
+        old = None
+        if path.is_dir():
+            if any(path.iterdir()):
+                old = temp_sibling(path, ".old")
+                os.rename(path, old)
+            else:
+                path.rmdir()
+        try:
+            os.rename(tmp, path)
+        except BaseException:
+            if old is not None:
+                os.rename(old, path)
+            raise
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    fsync_dir(path.parent)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------------------------------

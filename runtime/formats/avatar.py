@@ -17,7 +17,6 @@ import hashlib
 import json
 import os
 import re
-import shutil
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -27,16 +26,14 @@ from trioman.runtime.avatar import SCALE_CLAMP, Avatar
 from trioman.runtime.formats.common import (
     FormatError,
     _fail,
-    _fsynced_write,
     _is_int,
     _load_json,
     _load_npz,
-    _move_into_place,
     _plain_json,
     _write_npz,
     check_header,
 )
-from trioman.runtime.image_io import fsync_dir, temp_sibling
+from trioman.runtime.image_io import atomic_folder, check_folder_target, write_synced
 from trioman.runtime.skeleton import Skeleton
 
 AVATAR_FORMAT = "trioman-avatar"
@@ -272,10 +269,7 @@ def save_avatar(
 
     where = "save_avatar"
     target = Path(path)
-    if target.exists() and not target.is_dir():
-        raise FileExistsError(f"{target}: exists and is not a folder")
-    if target.is_dir() and any(target.iterdir()) and not overwrite:
-        raise FileExistsError(f"{target}: folder exists and is not empty (pass overwrite=True / --overwrite to replace it)")
+    check_folder_target(target, overwrite)
     if not isinstance(skeleton, Skeleton):
         raise FormatError(f"{where}: skeleton: expected a Skeleton, got {type(skeleton).__name__}")
     positions = np.asarray(gaussians.get("positions", np.zeros((0, 3))))
@@ -312,26 +306,17 @@ def save_avatar(
         session = _open_onnx(bytes(pose_dependent_onnx), f"{where}: {POSE_ONNX}", skeleton.num_joints, N, 3 if anisotropic else 1)
     avatar = Avatar(skeleton, arrays, meta, session)
 
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_sibling(target)
-    os.mkdir(tmp)
-    try:
+    with atomic_folder(target, overwrite) as tmp:
         _write_npz(tmp / GAUSSIANS_NPZ, arrays)
         _write_npz(tmp / SKELETON_NPZ, {"joint_names": np.array(skeleton.joint_names, dtype=np.str_),
                                         "parents": skeleton.parents, "joints": skeleton.joints})
         if pose_dependent_onnx is not None:
-            _fsynced_write(tmp / POSE_ONNX, bytes(pose_dependent_onnx))
+            write_synced(tmp / POSE_ONNX, bytes(pose_dependent_onnx))
         J = skeleton.num_joints
         write_ply(tmp / CANONICAL_PLY, *avatar.gaussians(np.zeros((J, 3)), np.zeros(3)))
         for name, (pose, trans) in posed.items():
             write_ply(tmp / f"posed_{name}.ply", *avatar.gaussians(pose, trans))
         for name in meta["files"]:
             meta["files"][name] = {"sha256": sha256_file(tmp / name), "bytes": (tmp / name).stat().st_size}
-        _fsynced_write(tmp / AVATAR_JSON, (json.dumps(meta, indent=2, allow_nan=False) + "\n").encode("utf-8"))
-        fsync_dir(tmp)
-        _move_into_place(tmp, target, overwrite)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    fsync_dir(target.parent)
+        write_synced(tmp / AVATAR_JSON, (json.dumps(meta, indent=2, allow_nan=False) + "\n").encode("utf-8"))
     return load_avatar(target)

@@ -1,4 +1,5 @@
-"""Helpers shared by the file formats: the error type, safe JSON/npz reading, atomic writes.
+"""Helpers shared by the file formats: the error type, safe JSON/npz reading and npz writing. The
+writers put their folders in place with ``trioman.runtime.image_io.atomic_folder``.
 
 Files are data: ``np.load(..., allow_pickle=False)``, never pickle. Every problem becomes a
 ``FormatError`` (a ValueError) whose message names the file, the field and the value.
@@ -9,13 +10,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import naming_os_errors, temp_sibling
+from trioman.runtime.image_io import write_synced
 
 
 class FormatError(ValueError):
@@ -98,18 +98,9 @@ def _load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | N
         archive.close()
 
 
-def _fsynced_write(path: Path, data: bytes) -> None:
-    with naming_os_errors(path), open(path, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-
-
 def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
-    with naming_os_errors(path), open(path, "wb") as f:
-        np.savez(f, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
+    """``arrays`` as an uncompressed .npz at ``path``, fsync'ed (``write_synced``)."""
+    write_synced(path, lambda f: np.savez(f, **arrays))
 
 
 def _real(v: Any) -> Any:
@@ -133,26 +124,6 @@ def _plain_json(value: Any, where: str, field: str) -> Any:
         return json.loads(json.dumps(value, default=default, allow_nan=False))
     except (TypeError, ValueError) as err:
         raise FormatError(f"{where}: {field}: {err}") from None
-
-
-def _move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
-    if not target.exists():
-        os.rename(tmp, target)
-        return
-    if not any(target.iterdir()):
-        target.rmdir()
-        os.rename(tmp, target)
-        return
-    if not overwrite:  # appeared while we were writing
-        raise FileExistsError(f"{target}: folder exists and is not empty (pass overwrite=True to replace it)")
-    old = temp_sibling(target, ".old")
-    os.rename(target, old)
-    try:
-        os.rename(tmp, target)
-    except BaseException:
-        os.rename(old, target)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
 
 
 def check_header(meta: Any, where: Any, fmt: str, version: int, kind: str) -> Callable[[str], Any]:

@@ -18,23 +18,20 @@ import json
 import operator
 import os
 import re
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import encode_png, fsync_dir, png_header, read_png, temp_sibling
+from trioman.runtime.image_io import atomic_folder, check_folder_target, encode_png, png_header, read_png, write_synced
 from trioman.runtime.formats.common import (
     FormatError,
     _fail,
-    _fsynced_write,
     _is_int,
     _is_number,
     _load_json,
     _load_npz,
-    _move_into_place,
     _plain_json,
     _real,
     _write_npz,
@@ -380,10 +377,7 @@ def save_subject(
     """
     where = "save_subject"
     target = Path(path)
-    if target.exists() and not target.is_dir():
-        raise FileExistsError(f"{target}: exists and is not a folder")
-    if target.is_dir() and any(target.iterdir()) and not overwrite:
-        raise FileExistsError(f"{target}: folder exists and is not empty (pass overwrite=True to replace it)")
+    check_folder_target(target, overwrite)
     if not isinstance(body, SkinnedMesh):
         raise FormatError(f"{where}: body: expected a SkinnedMesh, got {type(body).__name__}")
 
@@ -422,21 +416,11 @@ def save_subject(
     }
     frames = _check_frames(arrays, where, num_frames, body.skeleton.num_joints, seq_order)
 
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_sibling(target)
-    os.mkdir(tmp)
-    try:
+    with atomic_folder(target, overwrite) as tmp:
         _write_npz(tmp / BODY_NPZ, body.to_arrays())
         _write_npz(tmp / FRAMES_NPZ, frames)
         _write_frames(tmp, frames["frame_names"].tolist(), images, masks, int(width), int(height))
-        _fsynced_write(tmp / SUBJECT_JSON, meta_text.encode("utf-8"))
-        for d in (tmp / IMAGES_DIR, tmp / MASKS_DIR, tmp):
-            fsync_dir(d)
-        _move_into_place(tmp, target, overwrite)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    fsync_dir(target.parent)
+        write_synced(tmp / SUBJECT_JSON, meta_text.encode("utf-8"))
     return Subject(root=target, meta=meta, body=body, **frames)
 
 
@@ -463,7 +447,7 @@ def _write_frames(
                 data = encode_png(img, name=label)
             except ValueError as err:
                 raise FormatError(str(err)) from None
-            _fsynced_write(folder / sub / f"{name}.png", data)
+            write_synced(folder / sub / f"{name}.png", data)
     for kind, it, _, _ in streams:
         if next(it, None) is not None:
             raise FormatError(f"save_subject: {kind}: got more {kind} than the {N} frames")

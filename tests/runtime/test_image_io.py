@@ -11,8 +11,10 @@ import pytest
 from trioman.runtime import image_io
 from trioman.runtime.image_io import (
     VideoWriter,
+    atomic_folder,
     atomic_path,
     atomic_write_text,
+    write_synced,
     png_header,
     read_png,
     to_uint8,
@@ -135,6 +137,38 @@ def test_atomic_path_success_and_failure(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert target.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_atomic_folder_success_failure_and_overwrite(tmp_path):
+    target = tmp_path / "deep" / "out"
+    with pytest.raises(RuntimeError, match="boom"):
+        with atomic_folder(target) as tmp:
+            assert tmp.parent == target.parent and image_io.is_temp_name(tmp.name)
+            write_synced(tmp / "a.bin", b"half")
+            raise RuntimeError("boom")
+    assert os.listdir(tmp_path / "deep") == []  # nothing half-written, no temporary folder
+    with atomic_folder(target) as tmp:
+        (tmp / "sub").mkdir()
+        write_synced(tmp / "sub" / "a.npz", lambda f: np.savez(f, x=np.arange(3)))
+        assert not target.exists()  # readers see nothing until the rename
+    assert np.load(target / "sub" / "a.npz")["x"].tolist() == [0, 1, 2]
+    with pytest.raises(FileExistsError, match=r"out: folder exists and is not empty \(pass overwrite=True"):
+        with atomic_folder(target):
+            pass
+    with atomic_folder(target, overwrite=True) as tmp:
+        write_synced(tmp / "b.bin", b"new")
+    assert os.listdir(target) == ["b.bin"] and os.listdir(tmp_path / "deep") == ["out"]
+    with pytest.raises(FileExistsError, match="late: folder exists and is not empty"):  # appeared while writing
+        with atomic_folder(tmp_path / "late") as tmp:
+            (tmp_path / "late").mkdir()
+            (tmp_path / "late" / "x").write_text("x")
+    assert sorted(os.listdir(tmp_path)) == ["deep", "late"]
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(FileExistsError, match="file: exists and is not a folder"):
+        with atomic_folder(tmp_path / "file", overwrite=True):
+            pass
+    with pytest.raises(OSError, match="missing"):  # an OSError of a write names the file
+        write_synced(tmp_path / "missing" / "a.bin", b"x")
 
 
 def test_write_png_failure_keeps_old_file(tmp_path, monkeypatch):
