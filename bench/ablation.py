@@ -114,7 +114,7 @@ def _models(corpus: Path, out: Path, args: argparse.Namespace) -> tuple[dict[str
     from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
     from trioman.toolkit.refiner import CONDITIONS
 
-    fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop)
+    fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop, baseline_frames=args.baseline_frames)
     paths, info = {}, {}
     for cond in CONDITIONS:
         run = out / "models" / f"refiner_{cond.replace('+', '_')}"
@@ -122,7 +122,8 @@ def _models(corpus: Path, out: Path, args: argparse.Namespace) -> tuple[dict[str
         paths[f"refiner_{cond}"] = run
     run = out / "models" / "examiner"
     _, info["examiner"] = fit_examiner(corpus, run, args.examiner,
-                                       FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None))
+                                       FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None,
+                                                 baseline_frames=args.baseline_frames))
     paths["examiner"] = run
     return paths, {k: {"seconds": v["seconds"], "steps": v["fit"]["steps"]} for k, v in info.items()}
 
@@ -157,8 +158,11 @@ def bench_ablation(args: argparse.Namespace) -> dict:
     from trioman.toolkit.lpips import load_lpips_or_say_why
 
     corpus, out = Path(args.corpus), Path(args.out)
+    if args.baseline_frames not in ("all", "subset"):
+        raise ValueError(f"--baseline-frames: ablation trains on one corpus variant, 'all' or 'subset', got {args.baseline_frames!r}")
     if not (corpus / CORPUS_JSON).is_file():
-        build_corpus(corpus, CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size))
+        build_corpus(corpus, CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size,
+                                          baseline_frames=args.baseline_frames))
     meta = json.loads((corpus / CORPUS_JSON).read_text())
     heldout = [s["name"] for s in meta["subjects"] if s["role"] == "heldout"]
     names = args.ablation_subjects.split(",") if args.ablation_subjects else heldout
@@ -184,7 +188,7 @@ def bench_ablation(args: argparse.Namespace) -> dict:
         _grid(subject, out, name, plan)
         _pseudo_examples(subject, out, name, models)
     check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus)["heldout"][heldout.index(n)] for n in names])
-    report = {"corpus": str(corpus), "subjects": names, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
+    report = {"corpus": str(corpus), "subjects": names, "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None}
     report["summary"] = summarise(results)
@@ -325,7 +329,8 @@ def ablation_markdown(r: dict) -> str:
     plan = r["plan"]
     lines = [f"# trioman bench ablation ({len(r['subjects'])} held-out subjects: {', '.join(r['subjects'])})", "",
              f"Machine: {r.get('machine', 'n/a')}. Corpus `{r['corpus']}`; the Refiners and the Examiner were trained on its "
-             "training subjects only. Test split = novel poses from novel views; PSNR/SSIM under the masked protocol "
+             f"training subjects only, on the coarse frames of the '{r.get('baseline_frames', 'all')}' variant (all: their "
+             "avatars saw every frame; subset: every 4th, so most coarse frames carry novel-view error). Test split = novel poses from novel views; PSNR/SSIM under the masked protocol "
              f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
              f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
              f"{plan['augmented_iterations']} steps; pseudo-GT from step {plan['start']:.0%} on, pool of {plan['pool']} "

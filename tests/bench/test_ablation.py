@@ -48,6 +48,9 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert (out / "runs" / "s02" / "GRE_s1" / "checkpoints").iterdir().__next__().stat().st_mtime_ns == first
     assert main(argv[:-2] + ["--ablation-subjects", "s00"]) == 1
     assert "--ablation-subjects: ['s00'] are not held-out subjects" in capsys.readouterr().err
+    assert r["baseline_frames"] == "all" and "coarse frames of the 'all' variant" in md
+    assert main(argv + ["--baseline-frames", "all,subset"]) == 1
+    assert "--baseline-frames: ablation trains on one corpus variant" in capsys.readouterr().err
 
 
 def test_summary_verdicts_follow_the_numbers():

@@ -54,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--examiner-steps", type=int, default=1000, help="models: Examiner training steps")
     parser.add_argument("--batch", type=int, default=4, help="models: training batch size")
     parser.add_argument("--baseline-frames", default="all",
-                        help="models: corpus variants for the coarse frames, e.g. all,subset (each extra one adds a tex+geo Refiner)")
+                        help="models: corpus variants for the coarse frames, e.g. all,subset (each extra one adds a tex+geo Refiner); "
+                             "ablation: the one variant its Refiners and Examiner train on")
     parser.add_argument("--examiner", default="examiner_nano", help="models: Examiner config name (default examiner_nano)")
     parser.add_argument("--models", default="out/bench_models",
                         help="deploy: the `bench models` report folder whose trained runs are exported (default out/bench_models)")
