@@ -9,8 +9,9 @@ time of the renderer variants, the exported models per precision and optimisatio
 augment loop's stages); ``ablation`` (the paper's Tables 1 and 2: avatars trained with and without
 online augmentation on held-out subjects); ``frames`` (peak memory of training on a generated
 real-capture-sized subject); ``stability`` (the numerical-stability checks: renderers against the float64
-oracle on extreme scenes, rotations and FK + LBS near pi, the avatar loop at 100x its learning rates). Timings are wall clock on the machine named in the report; nothing here
-is a timed test. Module contract (trioman/cli.py): standard-library imports only at module level.
+oracle on extreme scenes, rotations and FK + LBS near pi, the Refiner and Examiner and their ONNX variants on
+extreme images, the three training loops at 100x their learning rates). Timings are wall clock on the machine
+named in the report; nothing here is a timed test. Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
 from __future__ import annotations
