@@ -7,6 +7,7 @@ and a GT frame T+k of the same sequence (0 < |k| <= k_max), as in the paper's da
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -18,8 +19,10 @@ import torch
 
 from trioman.runtime.image_io import atomic_write_text
 from trioman.toolkit.corpus import triplet_paths
+from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
 from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, pair_auroc, train_examiner
 from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, train_refiner
+from trioman.toolkit.train.checkpoint import latest_checkpoint
 from trioman.toolkit.triplets import TripletSet, Tuples
 
 
@@ -65,15 +68,58 @@ class FitConfig:
             raise ValueError(f"image_size: must be a multiple of 16 (>= 16) or None, got {self.image_size}")
 
 
+def crop_windows(shape: tuple[int, int], n: int, side: int | None,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
+    """Top-left corners (ys [n], xs [n]) of random ``side`` x ``side`` windows of an H x W frame; None,
+    drawing nothing, when ``side`` is None or not smaller than the frame."""
+    H, W = shape
+    if side is None or side >= min(H, W):
+        return None
+    return rng.integers(0, H - side + 1, n), rng.integers(0, W - side + 1, n)
+
+
+def cut(t: Tuples, side: int | None, windows: tuple[np.ndarray, np.ndarray] | None) -> Tuples:
+    """Sample b's images cut at window b (``crop_windows``); ``t`` itself for None."""
+    if windows is None:
+        return t
+    return Tuples(*(np.stack([a[b, y:y + side, x:x + side] for b, (y, x) in enumerate(zip(*windows))]) for a in t))
+
+
 def random_crop(t: Tuples, side: int | None, rng: np.random.Generator) -> Tuples:
     """The same random ``side`` x ``side`` window of every image of each sample (all of it if None or
     larger than the frame)."""
-    H, W = t.gt.shape[1:3]
-    if side is None or side >= min(H, W):
-        return t
-    ys = rng.integers(0, H - side + 1, len(t.gt))
-    xs = rng.integers(0, W - side + 1, len(t.gt))
-    return Tuples(*(np.stack([a[b, y:y + side, x:x + side] for b, (y, x) in enumerate(zip(ys, xs))]) for a in t))
+    return cut(t, side, crop_windows(t.gt.shape[1:3], len(t.gt), side, rng))
+
+
+class SampleStream:
+    """The batches of a run: step s's global batch of world size x ``fit.batch`` samples is the s-th
+    draw (frames, then crop windows) of one generator seeded with ``fit.seed``, the same on every
+    rank; each rank gathers and crops only its own rows (``Ranks.rows``). Asked for a later step, the
+    stream draws the indices of the steps in between, so a resumed run sees an uninterrupted run's
+    batches. One process draws exactly what ``data.sample`` then ``random_crop`` would."""
+
+    def __init__(self, data: TripletSet, fit: FitConfig, ranks: Ranks | None = None) -> None:
+        ranks = ranks or Ranks()
+        self.data, self.fit, self.rows = data, fit, ranks.rows(fit.batch)
+        self.size = fit.batch * ranks.world_size
+        self.rng = np.random.default_rng(fit.seed)
+        self.step = 0  # the step of the next draw
+
+    def _draw(self) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+        t, ref = self.data.draw(self.rng, self.size, self.fit.k_max, self.fit.split)
+        windows = crop_windows(self.data.gt.shape[1:3], self.size, self.fit.crop, self.rng)
+        self.step += 1
+        return t, ref, windows
+
+    def __call__(self, step: int) -> Tuples:
+        """This rank's samples of step ``step`` (>= the last step asked for)."""
+        if step < self.step:
+            raise ValueError(f"step: the stream is at step {self.step}, cannot go back to {step}")
+        while self.step < step:
+            self._draw()
+        t, ref, windows = self._draw()
+        rows = self.rows
+        return cut(self.data.take(t[rows], ref[rows]), self.fit.crop, None if windows is None else (windows[0][rows], windows[1][rows]))
 
 
 def training_triplets(source: str | Path | Sequence[str | Path], variant: str = "all") -> list[Path]:
@@ -87,21 +133,22 @@ def training_triplets(source: str | Path | Sequence[str | Path], variant: str = 
     return files
 
 
-def _sampler(source: str | Path | Sequence[str | Path], fit: FitConfig):
+def _stream(source: str | Path | Sequence[str | Path], fit: FitConfig, ranks: Ranks) -> SampleStream:
     data = TripletSet.load(training_triplets(source, fit.baseline_frames))
     if fit.image_size is not None:
         data = data.resized(fit.image_size)
-    rng = np.random.default_rng(fit.seed)
-    return data, (lambda: random_crop(data.sample(rng, fit.batch, fit.k_max, fit.split), fit.crop, rng))
+    return SampleStream(data, fit, ranks)
 
 
-def _finish(run: Path, info: dict, previous: dict | None) -> dict:
-    """Write fit.json; a run that was already complete keeps the record (and wall time) of the call
-    that trained it."""
+def _finish(run: Path, info: dict, previous: dict | None, ranks: Ranks) -> dict:
+    """Write fit.json (rank 0 alone; every rank waits for it); a run that was already complete keeps
+    the record (and wall time) of the call that trained it."""
     if previous is not None and _same_fit(previous.get("fit", {}), info["fit"]):
         return previous
-    run.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(run / "fit.json", json.dumps(info, indent=2) + "\n")
+    if ranks.main:
+        run.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(run / "fit.json", json.dumps(info, indent=2) + "\n")
+    barrier()
     return info
 
 
@@ -122,12 +169,15 @@ def _earlier_seconds(run: Path, fit: dict) -> float:
     return float(old.get("seconds", 0.0)) if same and old["fit"].get("steps", 0) < fit["steps"] else 0.0
 
 
+def _resume_step(run: Path) -> int:
+    """The step of the run's latest checkpoint (where training resumes), 0 without one."""
+    ckpt = latest_checkpoint(run)
+    return 0 if ckpt is None else int(ckpt.stem.split("_")[-1])
+
+
 def _previous(run: Path, steps: int) -> dict | None:
     """fit.json of a complete run (its last checkpoint reached ``steps``), else None."""
-    from trioman.toolkit.train.checkpoint import latest_checkpoint
-
-    ckpt = latest_checkpoint(run)
-    if ckpt is None or not (run / "fit.json").is_file() or int(ckpt.stem.split("_")[-1]) < steps:
+    if not (run / "fit.json").is_file() or _resume_step(run) < steps:
         return None
     return json.loads((run / "fit.json").read_text())
 
@@ -137,28 +187,32 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
                 pretrained: str | None = None, device: str = "cpu", mixed_precision: str = "no",
                 gradient_checkpointing: bool = False) -> tuple[torch.nn.Module, dict]:
     """Train a Refiner with ``conditions`` on the corpus's training subjects (or a list of triplet
-    files) into ``run`` on ``device``. -> (model, info). ``backbone`` "sd-turbo" builds on the local
-    diffusers folder ``pretrained`` (``refiner_size`` then does not apply); ``mixed_precision`` and
-    ``gradient_checkpointing`` are RefinerTrainConfig's."""
+    files) into ``run`` on ``device`` ("cpu" or "cuda"). -> (model, info). ``backbone`` "sd-turbo"
+    builds on the local diffusers folder ``pretrained`` (``refiner_size`` then does not apply);
+    ``mixed_precision`` and ``gradient_checkpointing`` are RefinerTrainConfig's. Under torchrun
+    (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md)."""
     run = Path(run)
+    ranks = current()
     previous = _previous(run, fit.steps)
-    data, draw = _sampler(corpus, fit)
-    size = fit.crop or data.gt.shape[1]
+    stream = _stream(corpus, fit, ranks)
+    size = fit.crop or stream.data.gt.shape[1]
     widths = REFINER_SIZES[refiner_size] if backbone == "scratch" else {}
     cfg = model_cfg or RefinerConfig(image_size=size, conditions=conditions, backbone=backbone, pretrained_path=pretrained, **widths)
     torch.manual_seed(fit.seed)
-    model = create_refiner(cfg, seed=fit.seed).to(device)
+    model = create_refiner(cfg, seed=fit.seed).to(torch_device(device, ranks))
     t = time.perf_counter() - _earlier_seconds(run, asdict(fit))
     train_cfg = RefinerTrainConfig(steps=fit.steps, lr=fit.lr, mixed_precision=mixed_precision, gradient_checkpointing=gradient_checkpointing)
-    result = train_refiner(model, lambda step: refiner_batch(draw()), train_cfg, run=run, lpips=lpips, progress=True)
+    result = train_refiner(model, lambda step: refiner_batch(stream(step)), train_cfg, run=run, lpips=lpips, progress=True)
     info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(), "device": device,
-            "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
+            "distributed": ranks.record(fit.batch, fit.seed), "seconds": time.perf_counter() - t,
+            "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
             "skipped_steps": result.skipped, "checkpoint": str(result.checkpoint)}
-    return model, _finish(run, info, previous)
+    return model, _finish(run, info, previous, ranks)
 
 
 def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
-                 pairing: str = "contrast", validation_subjects: int = 1, validate_every: int = 100) -> tuple[torch.nn.Module, dict]:
+                 pairing: str = "contrast", validation_subjects: int = 1, validate_every: int = 100, *, device: str = "cpu",
+                 mixed_precision: str = "no") -> tuple[torch.nn.Module, dict]:
     """Train an Examiner (a registered config name) on the corpus's training subjects (or a list of
     triplet files) into ``run``, at the triplets' size or ``fit.image_size``, with ``pairing``
     (``sample_pairs``: "contrast" or the paper's random draw).
@@ -167,8 +221,13 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
     ``validate_every`` steps the AUROC of real vs coarse pairs on all their frames (reference T+k,
     the paper's pairs) is measured and the model keeps the weights of the best step (run/selected.pt,
     what export and bench deploy load). 0 trains on every subject and keeps the last step.
+
+    ``device`` "cpu" or "cuda"; ``mixed_precision`` is ExaminerTrainConfig's. Under torchrun
+    (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md).
     """
     run = Path(run)
+    ranks = current()
+    dev = torch_device(device, ranks)
     files = training_triplets(corpus, fit.baseline_frames)
     if not isinstance(validation_subjects, int) or not 0 <= validation_subjects < len(files):
         raise ValueError(f"validation_subjects: must be an integer in [0, {len(files) - 1}] for {len(files)} training "
@@ -177,29 +236,30 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
         raise ValueError(f"validate_every: must be a positive integer, got {validate_every!r}")
     record = {**asdict(fit), "pairing": pairing, "validation_subjects": validation_subjects, "validate_every": validate_every}
     previous = _previous(run, fit.steps)
-    data, draw = _sampler(files[:len(files) - validation_subjects], fit)
+    stream = _stream(files[:len(files) - validation_subjects], fit, ranks)
     validate = None
     if validation_subjects:
         held = TripletSet.load(files[-validation_subjects:])
         if fit.image_size is not None:
             held = held.resized(fit.image_size)
-        val = examiner_batch(held.nearby(None, fit.k_max, fit.seed))
+        val = ExaminerBatch(*(x.to(dev) for x in examiner_batch(held.nearby(None, fit.k_max, fit.seed))))
         validate = lambda model: pair_auroc(model, val.gt, val.coarse, val.reference)  # noqa: E731
     torch.manual_seed(fit.seed)
-    model = create_examiner(name, img_size=data.gt.shape[1])
+    model = create_examiner(name, img_size=stream.data.gt.shape[1]).to(dev)
     t = time.perf_counter() - _earlier_seconds(run, record)
 
     def batches():
-        while True:
-            yield examiner_batch(draw())
+        for step in itertools.count(_resume_step(run)):  # train_examiner resumes from the same checkpoint
+            yield examiner_batch(stream(step))
 
     every = validate_every if validation_subjects else ExaminerTrainConfig.checkpoint_every
-    result = train_examiner(model, batches(), ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing,
-                                                                  checkpoint_every=every), run=run, validate=validate,
-                            progress=True)
-    info = {"model": "examiner", "name": name, "fit": record, "config": model.config.to_dict(),
-            "seconds": time.perf_counter() - t, "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
+    train_cfg = ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing, checkpoint_every=every,
+                                    mixed_precision=mixed_precision)
+    result = train_examiner(model, batches(), train_cfg, run=run, validate=validate, progress=True)
+    info = {"model": "examiner", "name": name, "fit": record, "config": model.config.to_dict(), "device": device,
+            "distributed": ranks.record(fit.batch, fit.seed), "seconds": time.perf_counter() - t,
+            "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
             "skipped_steps": result.skipped, "checkpoint": str(result.selected or result.checkpoint)}
     if validation_subjects:
         info.update(selected_step=result.selected_step, validation_auroc={str(k): v for k, v in result.validation.items()})
-    return model, _finish(run, info, previous)
+    return model, _finish(run, info, previous, ranks)

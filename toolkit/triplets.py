@@ -166,8 +166,9 @@ class TripletSet:
         f = np.float32(1.0 / 255.0)
         return Tuples(self.gt[t] * f, self.coarse[t] * f, self.normal[t] * f, self.gt[ref] * f, self.mask[t] * f)
 
-    def sample(self, rng: np.random.Generator, batch: int, k_max: int = 4, split: str | None = None) -> Tuples:
-        """A random batch: T uniform over the frames (of ``split`` if given), T+k uniform over partners."""
+    def draw(self, rng: np.random.Generator, batch: int, k_max: int = 4, split: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The frame indices of a random batch, (T [batch], T+k [batch]): T uniform over the frames (of
+        ``split`` if given), T+k uniform over its partners."""
         pool = np.arange(len(self)) if split is None else np.nonzero(self.split == split)[0]
         if len(pool) == 0:
             raise ValueError(f"split: no {split!r} frames in the triplets")
@@ -176,7 +177,11 @@ class TripletSet:
         for j, i in enumerate(t):
             p = self.partners(int(i), k_max)
             ref[j] = rng.choice(p) if len(p) else i
-        return self.take(t, ref)
+        return t, ref
+
+    def sample(self, rng: np.random.Generator, batch: int, k_max: int = 4, split: str | None = None) -> Tuples:
+        """A random batch (``draw``'s frames)."""
+        return self.take(*self.draw(rng, batch, k_max, split))
 
     def nearby(self, split: str | None = "test", k_max: int = 4, seed: int = 0) -> Tuples:
         """Every frame T of ``split`` (None: every frame) with a GT frame T+k of its sequence

@@ -39,7 +39,8 @@ def check_batch(batch: ExaminerBatch) -> None:
         shape = x.shape
 
 
-def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "contrast") -> ExaminerPairs:
+def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "contrast",
+                 shard: tuple[int, int] = (0, 1)) -> ExaminerPairs:
     """Training pairs from B samples. The paper's three kinds of pair:
 
     - (I^{T+k}, I^{T+k}) -> 1: "the branch with I^{T+k} as the sole input";
@@ -52,6 +53,10 @@ def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "con
     pair (last B rows): the two frames meet the same reference in the same step. Identical pairs are
     left out because they teach "candidate equals reference", which no real frame at another time is
     (docs/findings.md, "Examiner").
+
+    ``shard`` (rank, world size): ``batch`` is that rank's B rows of a global batch of world size x B;
+    the coin flips are drawn for the global batch and the rank's rows taken, so every rank's
+    generator stays in step and the ranks together draw what one process would.
     """
     check_batch(batch)
     if pairing not in PAIRINGS:
@@ -61,7 +66,8 @@ def sample_pairs(batch: ExaminerBatch, rng: torch.Generator, pairing: str = "con
     if pairing == "contrast":
         target = torch.cat([torch.ones(b), torch.zeros(b)]).to(dev, dt)
         return ExaminerPairs(torch.cat([batch.gt, batch.coarse]), torch.cat([ref, ref]), target)
-    use_real = torch.rand(b, generator=rng) < 0.5  # [B]
+    rank, world = shard
+    use_real = (torch.rand(b * world, generator=rng) < 0.5)[rank * b:(rank + 1) * b]  # [B]
     chosen = torch.where(use_real.to(dev)[:, None, None, None], batch.gt, batch.coarse)
     target = torch.cat([torch.ones(b), use_real.float()]).to(dev, dt)
     return ExaminerPairs(torch.cat([ref, chosen]), torch.cat([ref, ref]), target)

@@ -13,10 +13,12 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, NamedTuple
 
 import torch
+from torch import nn
 from tqdm import tqdm
 
+from trioman.toolkit.distributed import MIXED_PRECISION, barrier, check_world_size, current, data_parallel
 from trioman.toolkit.examiner.loss import examiner_loss
-from trioman.toolkit.examiner.model import Examiner, ExaminerConfig
+from trioman.toolkit.examiner.model import Examiner, ExaminerConfig, PatchLogits
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
 from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_atomic, save_checkpoint
 from trioman.toolkit.train.guard import StepGuard, check_weights
@@ -32,8 +34,11 @@ class ExaminerTrainConfig:
     seed: int = 0
     pairing: str = "contrast"  # sample_pairs: "contrast" (default) or "paper"
     max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient that stop the run
+    mixed_precision: str = "no"  # "bf16": the forward under torch.autocast, the loss in float32 (no loss scaling)
 
     def __post_init__(self) -> None:
+        if self.mixed_precision not in MIXED_PRECISION:
+            raise ValueError(f"mixed_precision: expected one of {MIXED_PRECISION}, got {self.mixed_precision!r}")
         if self.pairing not in PAIRINGS:
             raise ValueError(f"pairing: expected one of {PAIRINGS}, got {self.pairing!r}")
         if self.steps < 1:
@@ -61,6 +66,18 @@ class ExaminerTrainResult(NamedTuple):
     validation: dict[int, float] | None = None  # with ``validate``: {step: value} of every validation
     selected: Path | None = None  # with ``validate`` and a run folder: run/selected.pt
     skipped: int = 0  # steps skipped for a non-finite loss or gradient, over the whole run
+
+
+class _PairLogits(nn.Module):
+    """The training forward, ``branch_logits(candidate, reference)[0]`` (upper-branch patch logits),
+    as a module's ``forward``, so DistributedDataParallel can wrap it."""
+
+    def __init__(self, examiner: Examiner) -> None:
+        super().__init__()
+        self.examiner = examiner
+
+    def forward(self, candidate: torch.Tensor, reference: torch.Tensor) -> PatchLogits:
+        return self.examiner.branch_logits(candidate, reference)[0]
 
 
 def _batches(data: Iterable[ExaminerBatch]) -> Iterator[ExaminerBatch]:
@@ -98,7 +115,14 @@ def train_examiner(
     A step with a non-finite loss or gradient is skipped and counted (``ExaminerTrainResult.skipped``,
     kept in the checkpoints); ``config.max_skipped`` consecutive ones raise ``NonFiniteError``; a
     checkpoint is never written from non-finite weights.
+
+    The model trains on its device (batches are moved there); ``config.mixed_precision`` "bf16" runs
+    the forward under torch.autocast. Under torchrun (toolkit/distributed.py) ``data``
+    yields this rank's share of each step, the pair draws are the global batch's (the same generator
+    on every rank, this rank's rows taken), DDP averages the gradients, rank 0 alone writes files and
+    shows progress, and a checkpoint resumes only at the world size that wrote it.
     """
+    ranks = current()
     rng = torch.Generator().manual_seed(config.seed)  # the only randomness of the loop: pair sampling
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     step, saved, skipped = 0, None, 0
@@ -109,6 +133,7 @@ def train_examiner(
         state = load_checkpoint(found)
         if state["config"] != model.config.to_dict():
             raise ValueError(f"{found}: checkpoint config {state['config']} differs from the model's {model.config.to_dict()}")
+        check_world_size(int(state.get("world_size", 1)), ranks, found)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         rng.set_state(state["rng"])
@@ -120,13 +145,18 @@ def train_examiner(
     guard = StepGuard("examiner", config.max_skipped, skipped)
     hint = f"Lower the learning rate (lr={config.lr:g}) or check the data."
     model.train()
+    net = data_parallel(_PairLogits(model))
+    device = next(model.parameters()).device
     losses: list[float] = []
     batches = _batches(data)
-    bar = tqdm(total=config.steps, initial=step, desc="examiner", unit="step", disable=None if progress else True)
+    bar = tqdm(total=config.steps, initial=step, desc="examiner", unit="step",
+               disable=None if progress and ranks.main else True)
     while step < config.steps:
-        pairs = sample_pairs(next(batches), rng, config.pairing)
-        upper, _ = model.branch_logits(pairs.candidate, pairs.reference)
-        loss = examiner_loss(upper, pairs.target)
+        batch = ExaminerBatch(*(x.to(device) for x in next(batches)))
+        pairs = sample_pairs(batch, rng, config.pairing, (ranks.rank, ranks.world_size))
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.mixed_precision == "bf16"):
+            upper = net(pairs.candidate, pairs.reference)
+        loss = examiner_loss(PatchLogits(upper.scores.float(), upper.weights.float()), pairs.target)
         optimizer.zero_grad(set_to_none=True)
         if guard.finite_ok(loss, step, "loss", hint):
             loss.backward()
@@ -146,7 +176,7 @@ def train_examiner(
             history[step] = _validate(model, validate)
             if best is None or history[step] > history[best[0]]:
                 best = (step, {k: v.detach().clone() for k, v in model.state_dict().items()})
-        if run is not None and boundary:
+        if run is not None and boundary and ranks.main:
             state = {
                 "step": step,
                 "model": model.state_dict(),
@@ -155,6 +185,7 @@ def train_examiner(
                 "optimizer": optimizer.state_dict(),
                 "rng": rng.get_state(),
                 "skipped": guard.skipped,
+                "world_size": ranks.world_size,
                 **({"selection": {"validation": {str(k): v for k, v in history.items()}, "step": best[0], "model": best[1]}}
                    if best is not None else {}),
             }
@@ -162,12 +193,14 @@ def train_examiner(
     bar.close()
     model.eval()
     if validate is None:
+        barrier()
         return ExaminerTrainResult(losses, step, saved, skipped=guard.skipped)
     selected = None
     if best is not None:
         model.load_state_dict(best[1])
-        if run is not None:
+        if run is not None and ranks.main:
             selected = _save_selected(Path(run), best[0], best[1], model, config, history[best[0]])
+    barrier()
     return ExaminerTrainResult(losses, step, saved, best[0] if best else None, history, selected, guard.skipped)
 
 

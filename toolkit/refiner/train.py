@@ -19,15 +19,13 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from trioman.toolkit.distributed import MIXED_PRECISION, barrier, check_world_size, current, data_parallel
 from trioman.toolkit.refiner.backbones import create_refiner
 from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inputs, refiner_targets
 from trioman.toolkit.refiner.config import RefinerConfig
 from trioman.toolkit.refiner.loss import RefinerLossWeights, refiner_loss
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.guard import StepGuard, check_weights
-
-
-MIXED_PRECISION = ("no", "bf16")
 
 
 @dataclass(frozen=True)
@@ -81,9 +79,11 @@ def train_step(
     guard: StepGuard | None = None,
     step: int = 0,
     mixed_precision: str = "no",
+    net: nn.Module | None = None,
 ) -> dict[str, float] | None:
     """One optimisation step on ``batch`` (moved to the model's device) -> {'total', 'l1', 'ssim'[, 'lpips']}
     (before the step). ``mixed_precision`` "bf16" runs the forward and the loss under torch.autocast.
+    ``net`` runs the forward when given: ``model`` under DDP (toolkit/distributed.py).
 
     With ``guard``, a non-finite loss or gradient skips the update (the guard counts it; ``step`` names
     it in its message) and returns None."""
@@ -94,7 +94,7 @@ def train_step(
     optimizer.zero_grad(set_to_none=True)
     hint = f"Lower the learning rate (lr={optimizer.param_groups[0]['lr']:g}) or check the data."
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=mixed_precision == "bf16"):
-        outputs = model(*refiner_inputs(batch, conditions))
+        outputs = (model if net is None else net)(*refiner_inputs(batch, conditions))
         if guard is not None and not guard.finite_ok(outputs, step, "output", hint):  # the loss refuses NaN images
             return None
         total, terms = refiner_loss(outputs.float(), refiner_targets(batch, conditions), lpips=lpips, weights=weights)
@@ -128,7 +128,12 @@ def train_refiner(
     adds the LPIPS term. A step with a non-finite loss or gradient is skipped and counted
     (``RefinerTrainResult.skipped``, kept in the checkpoints); ``config.max_skipped`` consecutive ones
     raise ``NonFiniteError``; a checkpoint is never written from non-finite weights.
+
+    Under torchrun (toolkit/distributed.py) ``batches(s)`` is this rank's share of step s, DDP averages
+    the gradients, rank 0 alone writes checkpoints and shows progress, and a checkpoint resumes only
+    at the world size that wrote it.
     """
+    ranks = current()
     if config.gradient_checkpointing:
         if not hasattr(model, "enable_gradient_checkpointing"):
             raise ValueError(f"gradient_checkpointing: the {model.config.backbone!r} backbone does not support it")
@@ -140,16 +145,18 @@ def train_refiner(
         state = load_checkpoint(found)
         if state["config"] != model.config.to_dict():
             raise ValueError(f"{found}: checkpoint config {state['config']} differs from the model's {model.config.to_dict()}")
+        check_world_size(int(state.get("world_size", 1)), ranks, found)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         step, saved, skipped = int(state["step"]), found, int(state.get("skipped", 0))
     guard = StepGuard("refiner", config.max_skipped, skipped)
     model.train()
+    net = data_parallel(model)
     losses: list[float] = []
-    bar = tqdm(total=config.steps, initial=step, desc="refiner", unit="step", disable=None if progress else True)
+    bar = tqdm(total=config.steps, initial=step, desc="refiner", unit="step", disable=None if progress and ranks.main else True)
     while step < config.steps:
         terms = train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip, guard, step,
-                           config.mixed_precision)
+                           config.mixed_precision, net)
         if terms is not None:
             losses.append(terms["total"])
         step += 1
@@ -157,6 +164,8 @@ def train_refiner(
         bar.set_postfix(loss=f"{losses[-1]:.4f}" if losses else "-", **({"skipped": guard.skipped} if guard.skipped else {}))
         if run is not None and (step % config.checkpoint_every == 0 or step == config.steps):
             check_weights(model, "refiner", step, saved)
+            if not ranks.main:
+                continue
             state = {
                 "step": step,
                 "model": model.state_dict(),
@@ -164,10 +173,12 @@ def train_refiner(
                 "train": config.to_dict(),
                 "optimizer": optimizer.state_dict(),
                 "skipped": guard.skipped,
+                "world_size": ranks.world_size,
             }
             saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
     bar.close()
     model.eval()
+    barrier()
     return RefinerTrainResult(losses, step, saved, guard.skipped)
 
 

@@ -1,6 +1,7 @@
 """Non-finite guards for training loops: a step whose loss or gradient is NaN or Inf is skipped (no
 update) and counted; repeated failures stop the run with a message; weights that are not finite are
-never written to a checkpoint, so the last good one stays the newest."""
+never written to a checkpoint, so the last good one stays the newest. Under torchrun the skip decision
+is all-reduced: a step is skipped on every rank when one rank sees a NaN/Inf (toolkit/distributed.py)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import torch
+
+from trioman.toolkit.distributed import all_ranks
 
 
 class NonFiniteError(FloatingPointError):
@@ -43,16 +46,16 @@ class StepGuard:
 
     def finite_ok(self, value: torch.Tensor, step: int, what: str = "loss", hint: str = "") -> bool:
         """Before backward: False (the step counted as skipped) when ``value`` (the loss, or a model
-        output the loss would refuse) holds a NaN or Inf."""
-        if bool(torch.isfinite(value.detach()).all()):
+        output the loss would refuse) holds a NaN or Inf on any rank."""
+        if all_ranks(bool(torch.isfinite(value.detach()).all())):
             return True
         self._skip(step, what, hint)
         return False
 
     def grads_ok(self, params: Iterable[torch.nn.Parameter], step: int, hint: str = "") -> bool:
-        """After backward: False (the step counted as skipped) when a gradient is NaN or Inf; True resets
-        the consecutive count."""
-        if not grads_finite(params):
+        """After backward: False (the step counted as skipped) when a gradient is NaN or Inf on any rank;
+        True resets the consecutive count."""
+        if not all_ranks(grads_finite(params)):
             self._skip(step, "gradient", hint)
             return False
         self.consecutive = 0
