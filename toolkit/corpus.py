@@ -10,14 +10,22 @@ baselines see their train split only, and evaluation uses their test frames (nov
 Layout: DIR/corpus.json, DIR/subjects/sNN/, DIR/runs/<variant>/sNN/, DIR/triplets/<variant>/sNN.npz with
 variant = baseline_frames ("all" or "subset") for training subjects and "heldout" for held-out ones.
 Every piece is written atomically and skipped when already complete, so an interrupted build resumes.
+
+Sharded (``--shard I/N``, runtime/shards.py): job I builds the subjects at positions p with p % N == I
+(whole subjects: synthesis, baseline, triplets) and records itself in DIR/shards/; ``merge_corpus``
+checks every shard and each subject's files, writes corpus.json and removes DIR/shards, leaving the
+files of a one-process build (docs/scaling.md).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
+
+from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
 CORPUS_JSON = "corpus.json"
 
@@ -68,36 +76,78 @@ def triplet_paths(root: str | Path, baseline_frames: str = "all") -> dict[str, l
     return out
 
 
-def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True) -> Path:
-    from trioman.runtime.image_io import atomic_write_text
+def _paths(root: Path, cfg: CorpusConfig, name: str, role: str) -> tuple[Path, Path, Path]:
+    """(subject folder, baseline run, triplet file) of one subject."""
+    variant = cfg.baseline_frames if role == "train" else "heldout"
+    return root / "subjects" / name, root / "runs" / variant / name, root / "triplets" / variant / f"{name}.npz"
+
+
+def _build_subject(root: Path, cfg: CorpusConfig, i: int, progress: bool) -> None:
+    """Subject i's synthesis, baseline and triplets, each skipped when already complete."""
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
     from trioman.toolkit.triplets import build_triplets
 
+    name, role = cfg.names[i]
+    subject, run, trip = _paths(root, cfg, name, role)
+    if not (subject / "subject.json").is_file():
+        synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames), subject, progress=progress)
+    if not finished(run, cfg.iterations):
+        frames = {"frames": "all"} if role == "train" else {}
+        if role == "train" and cfg.baseline_frames == "subset":
+            frames["frame_stride"] = cfg.subset_stride
+        train_cfg = preset("quick", iterations=cfg.iterations, checkpoint_every=cfg.iterations, **frames)
+        train(subject, run, train_cfg, resume=(run / "config.json").exists(), progress=progress)
+    if not trip.is_file():
+        build_triplets(run, trip, progress=progress)
+    if progress:
+        print(f"synth-corpus: {name} ({role}) done: {trip}")
+
+
+def _settings(cfg: CorpusConfig) -> dict:
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
+def _write_corpus_json(root: Path, cfg: CorpusConfig) -> None:
+    from trioman.runtime.image_io import atomic_write_text
+
+    subjects = [{"name": name, "role": role, "seed": cfg.seed + i} for i, (name, role) in enumerate(cfg.names)]
+    atomic_write_text(root / CORPUS_JSON, json.dumps({"config": dataclasses.asdict(cfg), "subjects": subjects}, indent=2) + "\n")
+
+
+def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True, shard: Shard | None = None) -> Path:
+    """Build the corpus in ``root`` (resumable). With ``shard``, only that shard's subjects and its
+    record in root/shards, no corpus.json (``merge_corpus`` writes it)."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     for variant in (cfg.baseline_frames, "heldout"):
         for sub in ("runs", "triplets"):
             (root / sub / variant).mkdir(parents=True, exist_ok=True)
-    subjects = []
-    for i, (name, role) in enumerate(cfg.names):
-        subject = root / "subjects" / name
-        if not (subject / "subject.json").is_file():
-            synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames), subject, progress=progress)
-        variant = cfg.baseline_frames if role == "train" else "heldout"
-        run = root / "runs" / variant / name
-        if not finished(run, cfg.iterations):
-            frames = {"frames": "all"} if role == "train" else {}
-            if role == "train" and cfg.baseline_frames == "subset":
-                frames["frame_stride"] = cfg.subset_stride
-            train_cfg = preset("quick", iterations=cfg.iterations, checkpoint_every=cfg.iterations, **frames)
-            train(subject, run, train_cfg, resume=(run / "config.json").exists(), progress=progress)
-        trip = root / "triplets" / variant / f"{name}.npz"
-        if not trip.is_file():
-            build_triplets(run, trip, progress=progress)
-        subjects.append({"name": name, "role": role, "seed": cfg.seed + i})
-        if progress:
-            print(f"synth-corpus: {name} ({role}) done: {trip}")
-    atomic_write_text(root / CORPUS_JSON, json.dumps({"config": dataclasses.asdict(cfg), "subjects": subjects}, indent=2) + "\n")
+    positions = list(range(len(cfg.names)))
+    if shard is None:
+        for i in positions:
+            _build_subject(root, cfg, i, progress)
+        _write_corpus_json(root, cfg)
+        return root
+    mine = shard.take(positions)
+    with shard_run(root, shard, _settings(cfg), [cfg.names[i][0] for i in mine]):
+        for i in mine:
+            _build_subject(root, cfg, i, progress)
+    return root
+
+
+def merge_corpus(root: str | Path, cfg: CorpusConfig) -> Path:
+    """corpus.json of a corpus built by shards, after checking that every shard finished with ``cfg``
+    (runtime/shards.py) and that every subject's files are there; then the shard records go."""
+    root = Path(root)
+    check_shards(root, _settings(cfg))
+    for name, role in cfg.names:
+        subject, run, trip = _paths(root, cfg, name, role)
+        for path, ok in ((subject / "subject.json", (subject / "subject.json").is_file()),
+                         (run, finished(run, cfg.iterations)), (trip, trip.is_file())):
+            if not ok:
+                raise ValueError(f"--merge: subject {name} is incomplete: {path} (run its shard again)")
+    _write_corpus_json(root, cfg)
+    shutil.rmtree(root / SHARDS_DIR)
     return root

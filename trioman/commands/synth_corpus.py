@@ -1,5 +1,8 @@
 """``trioman synth-corpus --out DIR``: synthetic subjects, baseline avatars and triplets for the
-Refiner and Examiner (toolkit/corpus.py). Resumes where an interrupted build stopped."""
+Refiner and Examiner (toolkit/corpus.py). Resumes where an interrupted build stopped.
+
+``--shard I/N`` builds only the subjects of shard I of N (N jobs, on one machine or many sharing DIR);
+``--merge`` with the same settings then checks every shard and writes corpus.json (docs/scaling.md)."""
 
 from __future__ import annotations
 
@@ -17,16 +20,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="what training subjects' baselines see: all frames (paper) or every 4th (default all)")
     parser.add_argument("--seed", type=int, default=1000, help="first subject seed (default 1000)")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--shard", metavar="I/N", help="build only the subjects of shard I of N (0 <= I < N), no corpus.json")
+    parser.add_argument("--merge", action="store_true",
+                        help="after every --shard job: check them and write corpus.json (the same settings as the shards)")
 
 
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from trioman.toolkit.corpus import CorpusConfig, build_corpus
+    from trioman.runtime.shards import Shard
+    from trioman.toolkit.corpus import CorpusConfig, build_corpus, merge_corpus
 
+    if args.shard is not None and args.merge:
+        raise ValueError("--merge: runs after the --shard jobs, not with --shard")
+    shard = None if args.shard is None else Shard.parse(args.shard)
     cfg = CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size, frames=args.frames,
                        seed=args.seed, iterations=args.iterations, baseline_frames=args.baseline_frames)
     t = time.perf_counter()
-    root = build_corpus(args.out, cfg, progress=not args.quiet)
-    print(f"synth-corpus: {root} ({args.subjects} training + {args.heldout} held-out subjects) in {time.perf_counter() - t:.0f} s")
+    if args.merge:
+        root = merge_corpus(args.out, cfg)
+        print(f"synth-corpus: {root} merged ({args.subjects} training + {args.heldout} held-out subjects)")
+        return 0
+    root = build_corpus(args.out, cfg, progress=not args.quiet, shard=shard)
+    what = f"{args.subjects} training + {args.heldout} held-out subjects"
+    if shard is not None:
+        what = f"shard {shard}: {len(shard.take(cfg.names))} of {what}; merge with --merge when every shard is done"
+    print(f"synth-corpus: {root} ({what}) in {time.perf_counter() - t:.0f} s")
     return 0
