@@ -23,6 +23,11 @@ and the score histogram ``scores.png``. A frame is done when its record exists: 
 leaves only complete frames, and ``resume=True`` skips them and ends with the same files as an
 uninterrupted run (``subject.json``, ``frames.npz`` and ``augment.json`` are assembled from the
 records at the end; only the timings differ).
+
+Sharded (``shard``, runtime/shards.py): shard I of N does the source frames at positions p % N == I of
+the selection into its own folder ``out/shards/I-of-N`` (a resumable run like any other) and records
+itself; ``merge=True`` checks every shard (finished, same settings), moves their frames and records
+into ``out`` and assembles it as above: the files of a one-process run, timings aside.
 """
 
 from __future__ import annotations
@@ -53,6 +58,7 @@ from trioman.runtime.image_io import (
 )
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.render import rasterize
+from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
 __all__ = ["AUGMENT_JSON", "RECORDS_DIR", "HISTOGRAM_PNG", "STAGES", "augment", "frame_seed", "draw_histogram"]
 
@@ -265,6 +271,8 @@ def augment(
     generator: GeneratorConfig | None = None,
     threads: int | None = None,
     progress: bool = True,
+    shard: Shard | None = None,
+    merge: bool = False,
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
     optional Examiner (ONNX files) into the folder ``out`` (module doc). -> the augment.json content.
@@ -273,9 +281,9 @@ def augment(
     threshold: drop the chosen candidate when its Examiner score is below it (needs an Examiner).
     Every input is checked before any work; a bad one raises ValueError / FileNotFoundError /
     FileExistsError / FormatError naming the option and the value.
+    shard: do only that shard's frames, in out/shards/I-of-N (-> its record); merge: assemble ``out``
+    from every shard's (module doc).
     """
-    from tqdm import tqdm
-
     from trioman.runtime.models import ExaminerModel, RefinerModel
 
     _check_options(per_frame, threshold, seed, frames, limit, examiner, resume, overwrite)
@@ -286,8 +294,11 @@ def augment(
     avatar_path = _existing(avatar, "--avatar", "avatar folder")
     refiner_path = _existing(refiner, "--refiner", "Refiner ONNX file")
     examiner_path = None if examiner is None else _existing(examiner, "--examiner", "Examiner ONNX file")
+    if shard is not None and merge:
+        raise ValueError("--merge: runs after the --shard jobs, not with --shard")
     out = Path(out)
-    had_output = _check_out(out, resume, overwrite)
+    top, out = out, (out / SHARDS_DIR / shard.name if shard is not None else out)
+    had_output = False if merge else _check_out(out, resume, overwrite)
 
     subj = load_subject(subject_path)
     earlier = _written_files(out, subj.frame_names.tolist()) if had_output and overwrite else []  # refused first
@@ -310,6 +321,25 @@ def augment(
                          threshold, frames, gen_cfg)
     if had_output and resume:
         _check_resume(out, settings)
+    names = [str(subj.frame_names[i]) for i in selection]
+    if merge:
+        return _merge(out, subj, selection, check_shards(out, {**settings, "limit": limit}), settings, ex_model is not None,
+                      threshold)
+    if shard is not None:
+        with shard_run(top, shard, {**settings, "limit": limit}, shard.take(names)):
+            _run(out, subj, shard.take(selection.tolist()), av, ref_model, ex_model, seed, per_frame, threshold, gen_cfg,
+                 earlier, had_output, resume, settings, progress)
+        return json.loads(shard.record_path(top).read_text(encoding="utf-8"))
+    return _run(out, subj, selection.tolist(), av, ref_model, ex_model, seed, per_frame, threshold, gen_cfg, earlier,
+                had_output, resume, settings, progress, finish=True)
+
+
+def _run(out: Path, subj: Any, selection: list[int], av: Any, ref_model: Any, ex_model: Any, seed: int, per_frame: int,
+         threshold: float | None, gen_cfg: GeneratorConfig, earlier: list[Path], had_output: bool, resume: bool,
+         settings: dict[str, Any], progress: bool, finish: bool = False) -> dict[str, Any] | None:
+    """The frames of ``selection`` into ``out`` (resuming finished ones); with ``finish`` the assembled
+    subject and augment.json (-> its content)."""
+    from tqdm import tqdm
 
     # ---- work starts here
     for path in earlier:  # --overwrite: only what augment wrote (its folders stay)
@@ -332,7 +362,7 @@ def augment(
     records: list[dict[str, Any]] = []
     computed = 0
     start = time.perf_counter()
-    bar = tqdm(selection.tolist(), desc="augment", unit="frame", disable=None if progress else True)
+    bar = tqdm(selection, desc="augment", unit="frame", disable=None if progress else True)
     accepted = 0
     for i in bar:
         name = str(subj.frame_names[i])
@@ -346,8 +376,40 @@ def augment(
         bar.set_postfix(kept=accepted)
     bar.close()
     seconds = time.perf_counter() - start
+    if not finish:
+        return None
+    return _finish(out, subj, records, settings, header, ex_model is not None, threshold, computed, seconds)
 
-    result = _finish(out, subj, records, settings, header, ex_model is not None, threshold, computed, seconds)
+
+def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, Any]], settings: dict[str, Any],
+           with_examiner: bool, threshold: float | None) -> dict[str, Any]:
+    """Move every shard's frames and records into ``out`` (a record last, so a merge can be rerun), then
+    assemble ``out`` from the records in selection order and remove out/shards."""
+    start = time.perf_counter()
+    for d in (out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR):
+        d.mkdir(parents=True, exist_ok=True)
+    for rec in shards:
+        folder = out / SHARDS_DIR / Shard.parse(rec["shard"]).name
+        for name in rec["items"]:
+            src = _record_path(folder, name)
+            if not src.is_file():
+                if _record_path(out, name).is_file():  # moved by an earlier merge
+                    continue
+                raise ValueError(f"--merge: shard {rec['shard']} has no record for frame {name} ({src})")
+            for f in json.loads(src.read_text(encoding="utf-8"))["frames"]:
+                for sub in (IMAGES_DIR, MASKS_DIR):
+                    os.replace(folder / sub / f"{f['name']}.png", out / sub / f"{f['name']}.png")
+            os.replace(src, _record_path(out, name))
+    records = []
+    for i in selection.tolist():
+        rec = _read_record(out, str(subj.frame_names[i]), i)
+        if rec is None:
+            raise ValueError(f"--merge: frame {subj.frame_names[i]} has no complete record in {out / RECORDS_DIR}")
+        records.append(rec)
+    header = {"format": AUGMENT_FORMAT, "version": AUGMENT_VERSION, "status": "running", "settings": settings,
+              "versions": _versions()}
+    result = _finish(out, subj, records, settings, header, with_examiner, threshold, 0, time.perf_counter() - start)
+    shutil.rmtree(out / SHARDS_DIR)
     return result
 
 

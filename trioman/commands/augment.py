@@ -4,6 +4,10 @@ Generator -> coarse render -> body normal map -> Refiner -> Examiner (keep the b
 candidates, drop it below --threshold), per source frame; see trioman.runtime.augment and
 docs/formats.md "Augmented frames". Train on the result with ``trioman train SUBJECT --extra-frames DIR``.
 
+``--shard I/N`` does only shard I of N's source frames (in DIR/shards/I-of-N; N jobs on one machine or
+many sharing DIR); ``--merge`` with the same inputs then checks every shard and assembles DIR
+(docs/scaling.md).
+
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
@@ -30,16 +34,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--shard", metavar="I/N", help="do only the source frames of shard I of N (0 <= I < N)")
+    parser.add_argument("--merge", action="store_true",
+                        help="after every --shard job: check them and assemble --out (the same inputs as the shards)")
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from trioman.runtime.augment import AUGMENT_JSON, RECORDS_DIR, augment
+    from trioman.runtime.shards import Shard
 
+    shard = None if args.shard is None else Shard.parse(args.shard)
     r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
                 threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
-                overwrite=args.overwrite, threads=args.threads, progress=not args.quiet)
+                overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard, merge=args.merge)
+    if shard is not None:
+        print(f"augment: shard {shard} done ({len(r['items'])} source frames in {Path(args.out) / 'shards' / shard.name}); "
+              f"assemble with --merge when every shard is done")
+        return 0
     s, t = r["summary"], r["timing"]
     thr = "" if args.threshold is None else f" (threshold {args.threshold:g})"
     if args.examiner is None:

@@ -1,0 +1,40 @@
+"""``trioman augment --shard I/N`` and ``--merge`` (runtime/shards.py): shards of a tiny augment run merge
+into the files of a one-process run (timings aside); a missing shard or one with other settings makes
+the merge fail naming it."""
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("onnx")
+
+from tests.export.test_avatar import tiny_run, trained_like  # noqa: E402,F401 (fixture)
+from tests.runtime.test_augment import LIMIT, inputs, snapshot, straight  # noqa: E402,F401 (fixtures)
+from trioman.cli import main  # noqa: E402
+from trioman.runtime.shards import Shard  # noqa: E402
+
+
+def argv(inputs, out, *extra):  # noqa: F811 (the fixture) -- the flags of test_augment's run()
+    return ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner), "--examiner",
+            str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT), "--seed", "7", "--quiet", *extra]
+
+
+def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, capsys):  # noqa: F811
+    out = tmp_path / "sharded"
+    assert main(argv(inputs, out, "--shard", "2/3")) == 0
+    assert "augment: shard 2/3 done (1 source frames" in capsys.readouterr().out
+    assert main(argv(inputs, out, "--merge")) == 1
+    assert "--merge: shard 0/3 is missing: no " in capsys.readouterr().err
+    assert main(argv(inputs, out, "--shard", "0/3")) == 0
+    assert main(argv(inputs, out, "--shard", "1/3", "--seed", "8")) == 0
+    assert main(argv(inputs, out, "--merge")) == 1
+    assert "--merge: shard 1/3 ran with other settings (seed: 8, the merge has 7)" in capsys.readouterr().err
+    assert main(argv(inputs, out, "--shard", "1/3", "--overwrite")) == 0
+    assert main(argv(inputs, out, "--merge")) == 0
+    assert snapshot(out) == straight.files  # byte-identical images, masks, frames.npz, subject.json, histogram
+
+
+def test_shard_rule_and_parse():
+    assert Shard.parse("1/3").take(list("abcdefg")) == ["b", "e"]
+    assert Shard.parse(" 0/1 ").name == "0-of-1"
+    with pytest.raises(ValueError, match=r"--shard: expected I/N with 0 <= I < N \(e.g. 0/4\), got '3/3'"):
+        Shard.parse("3/3")
