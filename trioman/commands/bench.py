@@ -10,7 +10,8 @@ augment loop's stages); ``ablation`` (the paper's Tables 1 and 2: avatars traine
 online augmentation on held-out subjects); ``frames`` (peak memory of training on a generated
 real-capture-sized subject); ``stability`` (the numerical-stability checks: renderers against the float64
 oracle on extreme scenes, rotations and FK + LBS near pi, the Refiner and Examiner and their ONNX variants on
-extreme images, the three training loops at 100x their learning rates). Timings are wall clock on the machine
+extreme images, the three training loops at 100x their learning rates); ``scale`` (data-parallel training:
+samples per second at 1 and 2 processes, the communication share of a step, a prediction for 8 GPUs). Timings are wall clock on the machine
 named in the report; nothing here is a timed test. Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
@@ -28,13 +29,14 @@ TARGETS = {
     "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown"),
     "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown"),
     "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown"),
+    "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown"),
 }
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", choices=tuple(TARGETS), help="what to benchmark")
     parser.add_argument("--out", default="out/bench", help="report folder (default out/bench)")
-    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024)")
+    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64)")
     parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--presets", default="quick,full", help="train: presets to run, comma-separated")
@@ -53,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pretrained", metavar="DIR", help="models: local SD-Turbo folder for --backbone sd-turbo (never downloaded)")
     parser.add_argument("--crop", type=int, default=64, help="models: Refiner training crop side (default 64)")
     parser.add_argument("--examiner-steps", type=int, default=1000, help="models: Examiner training steps")
-    parser.add_argument("--batch", type=int, default=4, help="models: training batch size")
+    parser.add_argument("--batch", type=int, default=4, help="models: training batch size; scale: samples per process and step")
     parser.add_argument("--baseline-frames", default="all",
                         help="models: corpus variants for the coarse frames, e.g. all,subset (each extra one adds a tex+geo Refiner); "
                              "ablation: the one variant its Refiners and Examiner train on")
@@ -66,7 +68,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=2, help="ablation: seeds of the baseline and the full system (default 2); stability: extreme scenes drawn")
     parser.add_argument("--iterations", type=int, default=None,
                         help="train: every preset's iterations; ablation: real-frame steps of every avatar run (default 600); "
-                             "frames: training iterations (default 20); stability: training steps per case (default 30)")
+                             "frames: training iterations (default 20); stability: training steps per case (default 30); "
+                             "scale: timed steps per series (default 20)")
     parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
                         help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
 
@@ -77,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from trioman.bench.common import machine, peak_rss_mib, write_report
 
     if args.size is None:
-        args.size = {"models": 128, "ablation": 128, "frames": 1024}.get(args.target, 256)
+        args.size = {"models": 128, "ablation": 128, "frames": 1024, "scale": 64}.get(args.target, 256)
     if args.heldout is None:
         args.heldout = 3 if args.target == "ablation" else 2
     module, bench, markdown = TARGETS[args.target]
