@@ -12,6 +12,9 @@ Variants, per held-out subject (``VARIANTS``), all from the quick preset:
     GR_none/tex/tex+geo   + Refiner under each condition (--augment refined)
     GRE             + Refiner (tex+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
 
+With ``--detail-sigma S`` a lever (``LEVERS``) is trained too: GRd_tex+geo, the tex+geo Refiner's
+pseudo-GT keeping only its detail (``--augment-detail-sigma S``, runtime.generator.keep_detail).
+
 An augmented run takes ``iterations / (start + (1 - start) (1 - share))`` steps, so that it trains on
 as many real frames as the baseline plus its pseudo-GT steps; ``baseline_long`` has that length.
 A finished run (and its evaluation) is reused, so an interrupted benchmark resumes where it stopped.
@@ -44,10 +47,14 @@ VARIANTS = (
     ("GR_tex+geo", "refined", "tex+geo", False),
     ("GRE", "examined", "tex+geo", True),
 )
+# Levers: variants beyond the paper's, trained when their option is given; same tuple layout.
+LEVERS = (("GRd_tex+geo", "refined", "tex+geo", False),)
+ALL_VARIANTS = VARIANTS + LEVERS
 LABELS = {
     "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
     "GR_none": "+ Refinement (without condition)", "GR_tex": "+ Refinement (only tex. condition)",
     "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GRE": "+ Generator & Refiner & Examiner",
+    "GRd_tex+geo": "+ Generator & Refiner (tex.&geo.), detail only (lever)",
 }
 # The paper's subject 00028 (PSNR dB): Table 1 against the baseline, Table 2 against coarse frames.
 PAPER_TABLE1 = {"baseline": 30.5842, "G": 31.2905, "GR_tex+geo": 32.6586, "GRE": 33.0412}
@@ -63,6 +70,12 @@ class AblationPlan:
     refresh: int = 50
     pool: int = 8
     weight: float = 1.0
+    detail_sigma: float | None = None  # trains the GRd_tex+geo lever with this blur sigma (pixels)
+
+    @property
+    def variants(self) -> tuple[tuple, ...]:
+        """The (name, mode, condition, seeded) rows this plan trains."""
+        return VARIANTS + (LEVERS if self.detail_sigma else ())
 
     @property
     def augmented_iterations(self) -> int:
@@ -70,14 +83,14 @@ class AblationPlan:
 
 
 def _variant_runs(plan: AblationPlan) -> list[tuple[str, int]]:
-    return [(name, seed) for name, _, _, seeded in VARIANTS for seed in (range(plan.seeds) if seeded else (0,))]
+    return [(name, seed) for name, _, _, seeded in plan.variants for seed in (range(plan.seeds) if seeded else (0,))]
 
 
 def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Path]):
     from trioman.toolkit.train.augmentation import AugmentConfig
     from trioman.toolkit.train.config import preset
 
-    mode, cond = next((m, c) for n, m, c, _ in VARIANTS if n == name)
+    mode, cond = next((m, c) for n, m, c, _ in ALL_VARIANTS if n == name)
     avatar = dataclasses.replace(preset("quick").avatar, seed=seed)  # a seed draws the initial weights too
     if name == "baseline":
         return preset("quick", iterations=plan.iterations, seed=seed, avatar=avatar)
@@ -89,6 +102,8 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
         paths["refiner"] = str(models[f"refiner_{cond}"])
     if mode == "examined":
         paths["examiner"] = str(models["examiner"])
+    if any(name == n for n, *_ in LEVERS):
+        paths["detail_sigma"] = plan.detail_sigma
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
                         weight=plan.weight, **paths)
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
@@ -169,7 +184,7 @@ def bench_ablation(args: argparse.Namespace) -> dict:
     unknown = sorted(set(names) - set(heldout))
     if unknown:
         raise ValueError(f"--ablation-subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
-    plan = AblationPlan(iterations=args.iterations or AblationPlan.iterations, seeds=args.seeds)
+    plan = AblationPlan(iterations=args.iterations or AblationPlan.iterations, seeds=args.seeds, detail_sigma=args.detail_sigma)
     t0 = time.perf_counter()
     models, model_info = _models(corpus, out, args)
     print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -205,7 +220,7 @@ def summarise(results: dict[str, dict]) -> dict:
     seed spreads (max - min per subject, averaged); the targets' verdicts."""
     keys = ("psnr", "ssim", "lpips", "psnr_unmasked", "ssim_unmasked")
     subjects = list(results)
-    variants = [v for v, *_ in VARIANTS if all(v in results[s] for s in subjects)]
+    variants = [v for v, *_ in ALL_VARIANTS if all(v in results[s] for s in subjects)]
     mean = {v: {k: (float(np.mean([_mean_over_seeds(results[s][v], k) for s in subjects]))
                     if all(r[k] is not None for s in subjects for r in results[s][v].values()) else None) for k in keys}
             for v in variants}
@@ -232,7 +247,7 @@ def _grid(subject: Path, out: Path, name: str, plan: AblationPlan, frames: int =
     from trioman.toolkit.evaluate import load_run, render_frame
 
     images, labels = [], []
-    runs = [(v, out / "runs" / name / f"{v.replace('+', '_')}_s0") for v, *_ in VARIANTS]
+    runs = [(v, out / "runs" / name / f"{v.replace('+', '_')}_s0") for v, *_ in plan.variants]
     loaded = [(v, load_run(r)[0]) for v, r in runs]
     _, subj, _, _ = load_run(runs[0][1])
     idx = subj.indices("test")
@@ -284,7 +299,7 @@ def _bar_charts(report: dict, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     for name, res in report["results"].items():
-        variants = [v for v, *_ in VARIANTS if v in res]
+        variants = [v for v, *_ in ALL_VARIANTS if v in res]
         means = [_mean_over_seeds(res[v], "psnr") for v in variants]
         errs = [np.ptp([r["psnr"] for r in res[v].values()]) / 2 for v in variants]
         fig, ax = plt.subplots(figsize=(7, 3.6), dpi=120)
@@ -311,7 +326,7 @@ def _tables(per_variant: dict[str, dict]) -> list[str]:
             "|---|---|---|---|---|---|---|"]
     lines = ["Table 1", ""] + head
     base = per_variant["baseline"]["psnr"]
-    for v in ("baseline", "G", "GR_tex+geo", "GRE", "baseline_long"):
+    for v in ("baseline", "G", "GR_tex+geo", "GRE", "baseline_long", "GRd_tex+geo"):
         if v in per_variant:
             paper = PAPER_TABLE1[v] - PAPER_TABLE1["baseline"] if v in PAPER_TABLE1 else None
             lines.append(_row(LABELS[v], per_variant[v], base, paper))
@@ -335,7 +350,9 @@ def ablation_markdown(r: dict) -> str:
              f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
              f"{plan['augmented_iterations']} steps; pseudo-GT from step {plan['start']:.0%} on, pool of {plan['pool']} "
              f"rebuilt every {plan['refresh']} steps, {plan['share']:.0%} of later steps on it, weight {plan['weight']}. "
-             f"Seeds 0..{plan['seeds'] - 1} for the baseline and the full system (seed means in the tables).", ""]
+             f"Seeds 0..{plan['seeds'] - 1} for the baseline and the full system (seed means in the tables)."
+             + (f" Lever GRd_tex+geo: the tex+geo Refiner's pseudo-GT keeping only its detail (its change minus that change "
+                f"blurred by {plan['detail_sigma']} px)." if plan.get("detail_sigma") else ""), ""]
     s = r["summary"]
     lines += ["## Mean over subjects", ""] + _tables(s["mean"])
     v = s["verdict"]

@@ -371,3 +371,19 @@ def sample(
         new_view, delta = _perturb_camera(viewmat, center, rng, cfg)
         out.append(Candidate(new_pose, new_trans, new_view, new_pose - pose, delta, center.copy()))
     return out
+
+
+def keep_detail(coarse: np.ndarray, refined: np.ndarray, sigma: float) -> np.ndarray:
+    """The refined frames' detail on the coarse frames: coarse + d - blur(d), d = refined - coarse, blurred
+    by a Gaussian of ``sigma`` pixels (reflected borders). [N, H, W, 3] float32 in [0, 1] each -> the same,
+    clipped to [0, 1]. A change constant over the image (a colour shift) is removed; changes finer than
+    ``sigma`` pass."""
+    import cv2
+
+    if coarse.shape != refined.shape or coarse.ndim != 4 or coarse.shape[-1] != 3:
+        raise ValueError(f"refined: expected the coarse frames' shape [N, H, W, 3], got {refined.shape} and {coarse.shape}")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"sigma: must be a finite number > 0 (pixels), got {sigma!r}")
+    d = (refined - coarse).astype(np.float32)
+    low = np.stack([cv2.GaussianBlur(x, (0, 0), sigmaX=float(sigma), borderType=cv2.BORDER_REFLECT) for x in d])
+    return np.clip(coarse + d - low, 0.0, 1.0).astype(np.float32)

@@ -10,7 +10,7 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.ablation import VARIANTS, AblationPlan, summarise  # noqa: E402
+from trioman.bench.ablation import LEVERS, VARIANTS, AblationPlan, summarise  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
 
@@ -23,23 +23,27 @@ def corpus(tmp_path_factory):
 def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     out = tmp_path / "bench"
     argv = ["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--size", "32", "--iterations", "3",
-            "--seeds", "2", "--refiner-steps", "2", "--examiner-steps", "2", "--batch", "2", "--crop", "16"]
+            "--seeds", "2", "--refiner-steps", "2", "--examiner-steps", "2", "--batch", "2", "--crop", "16", "--detail-sigma", "2"]
     assert main(argv) == 0
     r = json.loads((out / "ablation.json").read_text())
     res = r["results"]["s02"]
-    assert list(res) == [v for v, *_ in VARIANTS]
+    assert list(res) == [v for v, *_ in VARIANTS + LEVERS]
     assert set(res["baseline"]) == set(res["GRE"]) == {"0", "1"} and set(res["G"]) == {"0"}
     plan = AblationPlan(iterations=3)
     assert res["baseline"]["0"]["iterations"] == 3 and res["GRE"]["0"]["iterations"] == plan.augmented_iterations == 4
     assert res["baseline_long"]["0"]["iterations"] == 4 and res["baseline"]["0"]["augment"] is None
-    for variant, mode in (("G", "coarse"), ("GR_tex", "refined"), ("GRE", "examined")):
+    assert r["plan"]["detail_sigma"] == 2.0
+    cfg = json.loads((out / "runs" / "s02" / "GRd_tex_geo_s0" / "config.json").read_text())
+    assert cfg["train"]["augment"]["detail_sigma"] == 2.0
+    for variant, mode in (("G", "coarse"), ("GR_tex", "refined"), ("GRE", "examined"), ("GRd_tex+geo", "refined")):
         a = res[variant]["0"]["augment"]
         assert a["mode"] == mode and a["kept"] > 0, variant
     assert all(np.isfinite(x["psnr"]) for runs in res.values() for x in runs.values())
     assert set(r["condition_check"]) == {"coarse", "true", "other_subject_reference", "zero_normal"}
     md = (out / "ablation.md").read_text()
     for text in ("Table 1", "Table 2", "+ Generator & Refiner & Examiner", "equal steps (control)", "paper 00028",
-                 "Does the tex+geo Refiner use its conditions", "ms per step"):
+                 "Does the tex+geo Refiner use its conditions", "ms per step",
+                 "detail only (lever)"):
         assert text in md, text
     for name in ("ablation_s02.png", "grid_s02.png", "pseudo_gt_s02.png"):
         assert (out / name).stat().st_size > 0, name

@@ -240,3 +240,18 @@ def test_config_merges_partial_groups_with_defaults():
     cfg = gen.GeneratorConfig(pose_sigma={"arms": 0.3})
     assert cfg.pose_sigma == {**gen.DEFAULT_POSE_SIGMA, "arms": 0.3}
     assert cfg.max_angle == dict(gen.DEFAULT_MAX_ANGLE)
+
+
+def test_keep_detail_drops_a_colour_shift_and_keeps_fine_detail():
+    rng = np.random.default_rng(0)
+    coarse = rng.uniform(0.2, 0.8, (2, 24, 20, 3)).astype(np.float32)
+    shifted = gen.keep_detail(coarse, coarse + np.float32(0.1), sigma=3.0)
+    np.testing.assert_allclose(shifted, coarse, atol=1e-6)  # a constant change is all low frequency
+    checker = (np.indices((24, 20)).sum(0) % 2 * 2 - 1).astype(np.float32)[None, ..., None] * np.float32(0.05)
+    kept = gen.keep_detail(coarse, coarse + checker, sigma=3.0) - coarse
+    assert np.corrcoef(kept.ravel(), np.broadcast_to(checker, kept.shape).ravel())[0, 1] > 0.99
+    assert np.abs(kept).mean() > 0.04  # the 1-pixel pattern passes nearly whole
+    with pytest.raises(ValueError, match="refined: expected the coarse frames' shape"):
+        gen.keep_detail(coarse, coarse[:1], sigma=3.0)
+    with pytest.raises(ValueError, match="sigma: must be a finite number > 0"):
+        gen.keep_detail(coarse, coarse, sigma=0.0)

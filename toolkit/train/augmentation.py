@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from trioman.runtime.formats import Subject
-from trioman.runtime.generator import GeneratorConfig, sample
+from trioman.runtime.generator import GeneratorConfig, keep_detail, sample
 from trioman.runtime.normal_map import body_normal_map
 from trioman.toolkit.avatar.model import GaussianAvatar
 from trioman.toolkit.render import rasterize
@@ -55,6 +55,9 @@ class AugmentConfig:
     pool: int = 8  # pseudo-GT frames per rebuild
     share: float = 0.5  # probability that a step after the warm-up trains on a pool frame
     weight: float = 1.0  # photometric loss weight of a pseudo-GT frame
+    detail_sigma: float = 0.0  # > 0: keep only the Refiner's detail, its change minus that change blurred by this
+    # many pixels (runtime.generator.keep_detail); the avatar then never learns the Refiner's colour shift, which the
+    # online loop would compound (each rebuild refines renders of an avatar trained on the previous refinements)
     pose_sigma: dict[str, float] = field(default_factory=dict)  # Generator pose sigmas per group (defaults otherwise)
     camera: tuple[float, float, float] | None = None  # Generator (azimuth, elevation, log-distance) sigmas; None: defaults
 
@@ -86,6 +89,10 @@ class AugmentConfig:
             raise ValueError(f"augment_share: must lie in (0, 1], got {self.share!r}")
         if not (math.isfinite(self.weight) and self.weight >= 0):
             raise ValueError(f"augment_weight: must be a finite number >= 0, got {self.weight!r}")
+        if not (isinstance(self.detail_sigma, (int, float)) and math.isfinite(self.detail_sigma) and self.detail_sigma >= 0):
+            raise ValueError(f"augment_detail_sigma: must be a finite number >= 0 (pixels), got {self.detail_sigma!r}")
+        if self.detail_sigma > 0 and self.mode == "coarse":
+            raise ValueError("augment_detail_sigma: needs a Refiner (--augment refined or examined)")
         self.generator()  # validates the sigmas
 
     @property
@@ -193,6 +200,8 @@ class Augmenter:
             t = _tick(sec, "normal", t)
             reference = None if self.refiner.conditions == "none" else np.broadcast_to(real, coarse_b.shape).astype(np.float32)
             images = np.asarray(self.refiner.refine(coarse_b, reference=reference, normal=normal), dtype=np.float32)
+            if self.cfg.detail_sigma > 0:
+                images = keep_detail(coarse_b, images, self.cfg.detail_sigma)
             t = _tick(sec, "refine", t)
         k = 0
         if self.examiner is not None:

@@ -70,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="train: every preset's iterations; ablation: real-frame steps of every avatar run (default 600); "
                              "frames: training iterations (default 20); stability: training steps per case (default 30); "
                              "scale: timed steps per series (default 20)")
+    parser.add_argument("--detail-sigma", type=float, default=None, metavar="PX",
+                        help="ablation: also train the lever GRd_tex+geo, refined pseudo-GT keeping only the Refiner's detail "
+                             "(its change minus that change blurred by PX pixels)")
     parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
                         help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
 

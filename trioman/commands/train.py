@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     aug.add_argument("--augment-pool", type=int, default=None, help="pseudo-GT frames per rebuild (default 8)")
     aug.add_argument("--augment-share", type=float, default=None, help="share of steps after the warm-up on pseudo-GT frames (default 0.5)")
     aug.add_argument("--augment-weight", type=float, default=None, help="loss weight of a pseudo-GT frame (default 1)")
+    aug.add_argument("--augment-detail-sigma", type=float, default=None, metavar="PX",
+                     help="keep only the Refiner's detail: its change minus that change blurred by PX pixels, so the "
+                          "avatar does not learn the Refiner's colour shift (default 0: the refined frame as it is)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its latest checkpoint (same subject, options and trioman "
                              "version as the run, else refused naming what differs)")
@@ -72,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
 _AUGMENT_FLAGS = {"refiner": "refiner", "examiner": "examiner", "per_frame": "per_frame", "threshold": "threshold",
                   "augment_start": "start", "augment_refresh": "refresh", "augment_pool": "pool",
-                  "augment_share": "share", "augment_weight": "weight"}
+                  "augment_share": "share", "augment_weight": "weight", "augment_detail_sigma": "detail_sigma"}
 
 
 def augment_config(args: argparse.Namespace):

@@ -123,6 +123,31 @@ def test_config_errors_name_the_option():
         AugmentConfig(mode="fancy")
     with pytest.raises(ValueError, match="pose_sigma"):
         AugmentConfig(pose_sigma={"tail": 0.1})
+    with pytest.raises(ValueError, match="augment_detail_sigma: must be a finite number >= 0"):
+        AugmentConfig(mode="refined", refiner="r", detail_sigma=-1.0)
+    with pytest.raises(ValueError, match="augment_detail_sigma: needs a Refiner"):
+        AugmentConfig(detail_sigma=2.0)
+
+
+def test_detail_only_pseudo_frames_keep_the_coarse_colours(subject, models):
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.avatar.model import GaussianAvatar
+    from trioman.toolkit.train.augmentation import Augmenter
+    from trioman.toolkit.train.data import load_frames
+
+    subj = load_subject(subject)
+    frames = load_frames(subj, "train")
+    model = GaussianAvatar(subj.body, TINY_AVATAR)
+    pools = {}
+    for name, kw in (("coarse", {}), ("refined", {"refiner": str(models["refiner"])}),
+                     ("detail", {"refiner": str(models["refiner"]), "detail_sigma": 1e3})):
+        aug = Augmenter(AugmentConfig(mode="coarse" if name == "coarse" else "refined", pool=3, start=0.0, **kw),
+                        subj, frames, 1, seed=0)  # one seed: the same draws in every pool
+        aug.rebuild(model)
+        pools[name] = aug.pool["images"].numpy()
+    shift = {k: np.abs(pools[k].mean((1, 2)) - pools["coarse"].mean((1, 2))).max() for k in ("refined", "detail")}
+    assert shift["detail"] < 0.2 * shift["refined"], shift  # a blur wider than the frame removes the mean change
+    assert not np.allclose(pools["detail"], pools["coarse"])  # the detail stays
 
 
 def test_bad_model_files_give_one_line_errors(models, tmp_path):
