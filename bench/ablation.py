@@ -143,6 +143,21 @@ def _models(corpus: Path, out: Path, args: argparse.Namespace) -> tuple[dict[str
     return paths, {k: {"seconds": v["seconds"], "steps": v["fit"]["steps"]} for k, v in info.items()}
 
 
+def _trained_models(out: Path) -> tuple[dict[str, Path], dict]:
+    """The Refiners and Examiner already trained in ``out/models`` (for --no-training), as _models returns them."""
+    from trioman.toolkit.refiner import CONDITIONS
+
+    paths = {f"refiner_{c}": out / "models" / f"refiner_{c.replace('+', '_')}" for c in CONDITIONS}
+    paths["examiner"] = out / "models" / "examiner"
+    info = {}
+    for key, run in paths.items():
+        if not (run / "fit.json").is_file():
+            raise FileNotFoundError(f"--no-training: {run} holds no trained model (fit.json); run the benchmark without it first")
+        fit = json.loads((run / "fit.json").read_text())
+        info[key] = {"seconds": fit["seconds"], "steps": fit["fit"]["steps"]}
+    return paths, info
+
+
 @torch.no_grad()
 def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
     """Masked PSNR of tex+geo refinement on held-out test triplets with the true conditions, another
@@ -186,26 +201,36 @@ def bench_ablation(args: argparse.Namespace) -> dict:
         raise ValueError(f"--ablation-subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
     plan = AblationPlan(iterations=args.iterations or AblationPlan.iterations, seeds=args.seeds, detail_sigma=args.detail_sigma)
     t0 = time.perf_counter()
-    models, model_info = _models(corpus, out, args)
+    report_only = bool(getattr(args, "no_training", False))
+    models, model_info = _trained_models(out) if report_only else _models(corpus, out, args)
     print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
+    from trioman.toolkit.corpus import finished
+
+    missing: list[str] = []
     lpips = load_lpips_or_say_why("bench ablation")
     results: dict[str, dict] = {}
+    truth: dict[str, dict] = {}
     for name in names:
         subject = corpus / "subjects" / name
         results[name] = {}
         for variant, seed in _variant_runs(plan):
             t = time.perf_counter()
             cfg = _train_config(variant, seed, plan, models)
-            r = _train_and_evaluate(subject, out / "runs" / name / f"{variant.replace('+', '_')}_s{seed}", cfg, lpips)
+            run = out / "runs" / name / f"{variant.replace('+', '_')}_s{seed}"
+            if report_only and not finished(run, cfg.iterations):
+                missing.append(f"{name}/{run.name}")
+                continue
+            r = _train_and_evaluate(subject, run, cfg, lpips)
             results[name].setdefault(variant, {})[str(seed)] = r
             print(f"bench ablation: {name} {variant} seed {seed}: test PSNR {r['psnr']:.2f} dB "
                   f"({r['train_seconds']:.0f} s training, {time.perf_counter() - t:.0f} s with evaluation)", flush=True)
-        _grid(subject, out, name, plan)
+        _grid(subject, out, name, [v for v, *_ in plan.variants if "0" in results[name].get(v, {})])
         _pseudo_examples(subject, out, name, models)
+        truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan)
     check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus)["heldout"][heldout.index(n)] for n in names])
     report = {"corpus": str(corpus), "subjects": names, "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
-              "results": results, "models": model_info, "condition_check": check, "wall_seconds": time.perf_counter() - t0,
-              "lpips": lpips is not None}
+              "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
+              "lpips": lpips is not None, "missing_runs": missing}
     report["summary"] = summarise(results)
     _bar_charts(report, out)
     return report
@@ -240,14 +265,14 @@ def summarise(results: dict[str, dict]) -> dict:
     return {"mean": mean, "seed_spread_psnr": spread, "verdict": verdict}
 
 
-def _grid(subject: Path, out: Path, name: str, plan: AblationPlan, frames: int = 3) -> Path:
-    """The same test frames across every variant (seed 0): rows = frames, columns = GT + variants."""
+def _grid(subject: Path, out: Path, name: str, variants: list[str], frames: int = 3) -> Path:
+    """The same test frames across ``variants`` (seed 0): rows = frames, columns = GT + variants."""
     from trioman.runtime.image_io import write_png
     from trioman.runtime.preview import contact_sheet
     from trioman.toolkit.evaluate import load_run, render_frame
 
     images, labels = [], []
-    runs = [(v, out / "runs" / name / f"{v.replace('+', '_')}_s0") for v, *_ in plan.variants]
+    runs = [(v, out / "runs" / name / f"{v.replace('+', '_')}_s0") for v in variants]
     loaded = [(v, load_run(r)[0]) for v, r in runs]
     _, subj, _, _ = load_run(runs[0][1])
     idx = subj.indices("test")
@@ -290,6 +315,82 @@ def _pseudo_examples(subject: Path, out: Path, name: str, models: dict[str, Path
     path = out / f"pseudo_gt_{name}.png"
     write_png(path, contact_sheet(images, labels, cols=len(columns)))
     return path
+
+
+@torch.no_grad()
+def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: AblationPlan, draws: int = 12,
+                    seed: int = 7) -> dict:
+    """Pseudo-GT against the truth, which a synthetic subject has: the same ``draws`` Generator candidates
+    (from training frames) rendered by the subject's own mesh renderer at the candidate's pose and camera.
+    -> {"frames": masked PSNR of the seed-0 baseline avatar's coarse render, each Refiner's output and
+    the detail-only output (with plan.detail_sigma), "avatars": per finished run (seed 0) masked PSNR of
+    its coarse render and its mean signed colour error (RGB, inside the true mask)}."""
+    from trioman.runtime.formats import load_subject
+    from trioman.runtime.generator import keep_detail, sample
+    from trioman.runtime.normal_map import body_normal_map
+    from trioman.toolkit.evaluate import load_run
+    from trioman.toolkit.render import rasterize
+    from trioman.toolkit.synth.shading import render_textured
+    from trioman.toolkit.synth.subject import SynthConfig, build_body
+    from trioman.toolkit.synth.texture import bake_texture
+    from trioman.toolkit.train.augmentation import AugmentConfig
+    from trioman.toolkit.train.pseudo_models import load_pseudo_refiner
+
+    subj = load_subject(subject)
+    made = dict(subj.meta["generator"])
+    if made.pop("tool", None) != "trioman synth":
+        return {}
+    made.pop("version", None)
+    cfg = SynthConfig(**made)
+    mesh, _ = build_body(cfg)
+    texture = bake_texture(mesh, seed=cfg.seed, size=cfg.texture_size)
+    rng = np.random.default_rng(seed)
+    W, H, bg = subj.width, subj.height, subj.background.astype(np.float32)
+    draws_ = []
+    for i in rng.choice(subj.indices("train"), size=draws):
+        c = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]), np.asarray(subj.viewmat[i]),
+                   rng, 1, AugmentConfig().generator())[0]
+        K = np.asarray(subj.K[i], np.float64)
+        rgb, mask = render_textured(mesh, mesh.pose(c.pose.astype(np.float64), c.trans.astype(np.float64)), texture,
+                                    c.viewmat, K, W, H, cfg.supersample)
+        m = subj.mask(int(i))[..., None]
+        draws_.append({"c": c, "K": K, "truth": rgb, "mask": mask, "real": (subj.image(int(i)) * m + (1 - m) * bg).astype(np.float32),
+                       "normal": body_normal_map(subj.body, c.pose, c.trans, c.viewmat, K, W, H).rgb.astype(np.float32)})
+
+    def coarse(model) -> np.ndarray:
+        out = []
+        for d in draws_:
+            g = model(torch.from_numpy(d["c"].pose.astype(np.float32)), torch.from_numpy(d["c"].trans.astype(np.float32))).refined
+            r = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, torch.from_numpy(d["c"].viewmat.astype(np.float32)),
+                          torch.from_numpy(d["K"].astype(np.float32)), W, H, background=torch.from_numpy(bg))
+            out.append(r.rgb.clamp(0, 1).numpy())
+        return np.stack(out)
+
+    truth = np.stack([d["truth"] for d in draws_])
+    mask = np.stack([d["mask"] for d in draws_])[..., None]
+
+    def psnr(x: np.ndarray) -> float:
+        err = ((x - truth) * mask) ** 2  # both over white outside the true mask: the masked protocol
+        return float(-10 * np.log10(max(float(err.mean()), 1e-12)))
+
+    base = coarse(load_run(runs / "baseline_s0")[0])
+    frames = {"coarse": psnr(base)}
+    reference, normal = np.stack([d["real"] for d in draws_]), np.stack([d["normal"] for d in draws_])
+    for cond in ("none", "tex", "tex+geo"):
+        ref = load_pseudo_refiner(str(models[f"refiner_{cond}"]))
+        refined = np.asarray(ref.refine(base, reference=None if cond == "none" else reference,
+                                        normal=normal if cond == "tex+geo" else None), dtype=np.float32)
+        frames[f"refined ({cond})"] = psnr(refined)
+        if cond == "tex+geo" and plan.detail_sigma:
+            frames[f"detail only (tex+geo, {plan.detail_sigma:g} px)"] = psnr(keep_detail(base, refined, plan.detail_sigma))
+    avatars = {}
+    for v, *_ in plan.variants:
+        run = runs / f"{v.replace('+', '_')}_s0"
+        if (run / "eval_test" / "summary.json").is_file():
+            x = coarse(load_run(run)[0])
+            inside = mask[..., 0] > 0.5
+            avatars[v] = {"psnr": psnr(x), "colour_bias": [float(b) for b in (x - truth)[inside].mean(0)]}
+    return {"draws": draws, "frames": frames, "avatars": avatars}
 
 
 def _bar_charts(report: dict, out: Path) -> None:
@@ -353,6 +454,9 @@ def ablation_markdown(r: dict) -> str:
              f"Seeds 0..{plan['seeds'] - 1} for the baseline and the full system (seed means in the tables)."
              + (f" Lever GRd_tex+geo: the tex+geo Refiner's pseudo-GT keeping only its detail (its change minus that change "
                 f"blurred by {plan['detail_sigma']} px)." if plan.get("detail_sigma") else ""), ""]
+    if r.get("missing_runs"):
+        lines += [f"Report of the finished runs only (--no-training); not yet trained: {', '.join(r['missing_runs'])}. "
+                  "A variant missing for a subject is left out of the mean.", ""]
     s = r["summary"]
     lines += ["## Mean over subjects", ""] + _tables(s["mean"])
     v = s["verdict"]
@@ -380,6 +484,20 @@ def ablation_markdown(r: dict) -> str:
                              f"{a['pseudo_steps'] if a else ''} | {kept} | {ms} |")
         lines += ["", f"![PSNR per variant](ablation_{name}.png)", "", f"![the same test frames across variants](grid_{name}.png)", "",
                   f"![pseudo-GT of the baseline avatar: coarse and refined per condition](pseudo_gt_{name}.png)", ""]
+    for name, t in r.get("pseudo_gt_truth", {}).items():
+        if not t:
+            continue
+        lines += [f"## Pseudo-GT against the truth: {name}", "",
+                  f"{t['draws']} Generator draws from training frames; truth = the synthetic subject rendered by its own mesh "
+                  "renderer at the draw's pose and camera; masked PSNR. Frames from the seed-0 baseline avatar:", "",
+                  "| pseudo-GT | PSNR vs truth |", "|---|---|"]
+        lines += [f"| {k} | {v:.2f} |" for k, v in t["frames"].items()]
+        lines += ["", "Each finished run's own renders at the same draws (what its next pseudo-GT would start from), with "
+                  "the mean signed colour error inside the body (RGB, 0..1):", "",
+                  "| run (seed 0) | PSNR vs truth | colour error R, G, B |", "|---|---|---|"]
+        lines += [f"| {LABELS[v]} | {a['psnr']:.2f} | {', '.join(f'{b:+.4f}' for b in a['colour_bias'])} |"
+                  for v, a in t["avatars"].items()]
+        lines += [""]
     c = r["condition_check"]
     lines += ["## Does the tex+geo Refiner use its conditions?", "",
               "Masked PSNR of held-out test triplets (coarse render at the test pose, nearest-view training frame as reference):", "",

@@ -33,6 +33,11 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert res["baseline"]["0"]["iterations"] == 3 and res["GRE"]["0"]["iterations"] == plan.augmented_iterations == 4
     assert res["baseline_long"]["0"]["iterations"] == 4 and res["baseline"]["0"]["augment"] is None
     assert r["plan"]["detail_sigma"] == 2.0
+    truth = r["pseudo_gt_truth"]["s02"]
+    assert set(truth["frames"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)",
+                                    "detail only (tex+geo, 2 px)"}
+    assert set(truth["avatars"]) == {v for v, *_ in VARIANTS + LEVERS} and all(
+        np.isfinite(a["psnr"]) and len(a["colour_bias"]) == 3 for a in truth["avatars"].values())
     cfg = json.loads((out / "runs" / "s02" / "GRd_tex_geo_s0" / "config.json").read_text())
     assert cfg["train"]["augment"]["detail_sigma"] == 2.0
     for variant, mode in (("G", "coarse"), ("GR_tex", "refined"), ("GRE", "examined"), ("GRd_tex+geo", "refined")):
@@ -43,13 +48,21 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     md = (out / "ablation.md").read_text()
     for text in ("Table 1", "Table 2", "+ Generator & Refiner & Examiner", "equal steps (control)", "paper 00028",
                  "Does the tex+geo Refiner use its conditions", "ms per step",
-                 "detail only (lever)"):
+                 "detail only (lever)", "Pseudo-GT against the truth: s02"):
         assert text in md, text
     for name in ("ablation_s02.png", "grid_s02.png", "pseudo_gt_s02.png"):
         assert (out / name).stat().st_size > 0, name
     first = (out / "runs" / "s02" / "GRE_s1" / "checkpoints").iterdir().__next__().stat().st_mtime_ns
     assert main(argv) == 0  # finished runs are reused, not retrained
     assert (out / "runs" / "s02" / "GRE_s1" / "checkpoints").iterdir().__next__().stat().st_mtime_ns == first
+    import shutil
+
+    shutil.rmtree(out / "runs" / "s02" / "GR_none_s0")
+    assert main(argv + ["--no-training"]) == 0  # a report of the finished runs; the removed one is named, not retrained
+    assert not (out / "runs" / "s02" / "GR_none_s0").exists()
+    r2 = json.loads((out / "ablation.json").read_text())
+    assert r2["missing_runs"] == ["s02/GR_none_s0"] and "GR_none" not in r2["results"]["s02"]
+    assert "not yet trained: s02/GR_none_s0" in (out / "ablation.md").read_text()
     assert main(argv[:-2] + ["--ablation-subjects", "s00"]) == 1
     assert "--ablation-subjects: ['s00'] are not held-out subjects" in capsys.readouterr().err
     assert r["baseline_frames"] == "all" and "coarse frames of the 'all' variant" in md

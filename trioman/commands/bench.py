@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--presets", default="quick,full", help="train: presets to run, comma-separated")
     parser.add_argument("--full-iterations", type=int, default=None, help="train: cap the full preset's iterations")
     parser.add_argument("--eval-every", type=int, default=250, help="train: test evaluation interval (iterations)")
-    parser.add_argument("--no-training", action="store_true", help="train: only the rasterizer timings")
+    parser.add_argument("--no-training", action="store_true", help="train: only the rasterizer timings; ablation: report the finished runs, train nothing")
     parser.add_argument("--avatar-run", default=None, metavar="RUN",
                         help="render: a trained run folder (default: the untrained default avatar)")
     parser.add_argument("--corpus", default="out/corpus", help="models: corpus folder, built when absent (default out/corpus)")
