@@ -227,7 +227,7 @@ def bench_ablation(args: argparse.Namespace) -> dict:
         _grid(subject, out, name, [v for v, *_ in plan.variants if "0" in results[name].get(v, {})])
         _pseudo_examples(subject, out, name, models)
         truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan)
-    check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus)["heldout"][heldout.index(n)] for n in names])
+    check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus, args.baseline_frames)["heldout"][heldout.index(n)] for n in names])
     report = {"corpus": str(corpus), "subjects": names, "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
