@@ -329,11 +329,11 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     from trioman.runtime.generator import keep_detail, sample
     from trioman.runtime.normal_map import body_normal_map
     from trioman.toolkit.evaluate import load_run
-    from trioman.toolkit.render import rasterize
+    from trioman.runtime.metrics import psnr as psnr_db
     from trioman.toolkit.synth.shading import render_textured
     from trioman.toolkit.synth.subject import SynthConfig, build_body
     from trioman.toolkit.synth.texture import bake_texture
-    from trioman.toolkit.train.augmentation import AugmentConfig
+    from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
     from trioman.toolkit.train.pseudo_models import load_pseudo_refiner
 
     subj = load_subject(subject)
@@ -358,20 +358,15 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
                        "normal": body_normal_map(subj.body, c.pose, c.trans, c.viewmat, K, W, H).rgb.astype(np.float32)})
 
     def coarse(model) -> np.ndarray:
-        out = []
-        for d in draws_:
-            g = model(torch.from_numpy(d["c"].pose.astype(np.float32)), torch.from_numpy(d["c"].trans.astype(np.float32))).refined
-            r = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, torch.from_numpy(d["c"].viewmat.astype(np.float32)),
-                          torch.from_numpy(d["K"].astype(np.float32)), W, H, background=torch.from_numpy(bg))
-            out.append(r.rgb.clamp(0, 1).numpy())
-        return np.stack(out)
+        return np.stack([render_candidate(model, d["c"], torch.from_numpy(d["K"].astype(np.float32)), W, H, bg)[0]
+                         for d in draws_])
 
     truth = np.stack([d["truth"] for d in draws_])
     mask = np.stack([d["mask"] for d in draws_])[..., None]
 
     def psnr(x: np.ndarray) -> float:
-        err = ((x - truth) * mask) ** 2  # both over white outside the true mask: the masked protocol
-        return float(-10 * np.log10(max(float(err.mean()), 1e-12)))
+        # both over white outside the true mask (the masked protocol); one PSNR of all draws together
+        return float(psnr_db((x * mask)[None], (truth * mask)[None])[0])
 
     base = coarse(load_run(runs / "baseline_s0")[0])
     frames = {"coarse": psnr(base)}

@@ -179,16 +179,8 @@ class Augmenter:
         cands = sample(self.subject.body.skeleton, f.poses[i].numpy(), f.trans[i].numpy(), f.viewmat[i].numpy(),
                        self.rng, self.cfg.candidates, self.gen_cfg)
         t = _tick(sec, "generate", t)
-        bg_t = torch.from_numpy(bg)
-        coarse, alpha = [], []
-        for c in cands:
-            out = model(torch.from_numpy(c.pose.astype(np.float32)), torch.from_numpy(c.trans.astype(np.float32)))
-            g = out.refined
-            r = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors,
-                          torch.from_numpy(c.viewmat.astype(np.float32)), f.K[i], W, H, background=bg_t)
-            coarse.append(r.rgb.clamp(0, 1).numpy())
-            alpha.append(r.alpha.clamp(0, 1).numpy())
-        coarse_b, alpha_b = np.stack(coarse), np.stack(alpha)
+        renders = [render_candidate(model, c, f.K[i], W, H, bg) for c in cands]
+        coarse_b, alpha_b = np.stack([r for r, _ in renders]), np.stack([a for _, a in renders])
         t = _tick(sec, "render", t)
         self.stats["candidates"] += len(cands)
         images = coarse_b
@@ -239,6 +231,17 @@ class Augmenter:
                 **{k: s[k] for k in ("rebuilds", "pseudo_steps", "candidates", "kept", "dropped")},
                 "mean_kept_score": s["score_sum"] / s["scored"] if s["scored"] else None,
                 "seconds": s["seconds"], "ms_per_step": {k: 1e3 * v / max(steps, 1) for k, v in s["seconds"].items()}}
+
+
+@torch.no_grad()
+def render_candidate(model: GaussianAvatar, c: Any, K: torch.Tensor, width: int, height: int,
+                     background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The avatar (refined set) at a Generator candidate's pose and camera over ``background``:
+    -> (rgb [H, W, 3], alpha [H, W]) float32 in [0, 1]. K: [3, 3]."""
+    g = model(torch.from_numpy(c.pose.astype(np.float32)), torch.from_numpy(c.trans.astype(np.float32))).refined
+    r = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, torch.from_numpy(c.viewmat.astype(np.float32)),
+                  K, width, height, background=torch.from_numpy(background))
+    return r.rgb.clamp(0, 1).numpy(), r.alpha.clamp(0, 1).numpy()
 
 
 def _tick(seconds: dict[str, float], stage: str, t: float) -> float:
