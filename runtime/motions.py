@@ -90,7 +90,7 @@ class _Builder:
 
 
 def turn_in_place(skeleton: Skeleton, frames: int, turns: float = 1.0) -> Motion:
-    """Training motion of a monocular capture: a full turn about z with mild arm and leg motion."""
+    """Training motion of a monocular capture: ``turns`` turns about z with mild arm and leg motion."""
     t = _phase(frames)
     w = 2 * np.pi * t
     b = _Builder(skeleton, frames).rot("root", 2, turns * w)

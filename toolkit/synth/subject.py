@@ -1,7 +1,8 @@
 """Synthetic subjects: a seeded body, clothing texture, training and test motions, cameras, frames.
 
 Training frames mimic a monocular capture: a fixed camera and a subject turning in place through
-360 degrees with mild arm and leg motion. Test frames are novel poses (arms raised, squat, step,
+360 degrees (or ``coverage`` of a turn: a capture seen from one side) with mild arm and leg motion.
+Test frames are novel poses (arms raised, squat, step,
 wave) seen from novel views (other elevations, distances and body orientations). Frames are
 rendered by the z-buffer mesh rasterizer with per-pixel texture lookup and 2x2 supersampling.
 """
@@ -51,6 +52,7 @@ class SynthConfig:
     texture_size: int = 1024
     supersample: int = 2
     body_model: str = "anny"
+    coverage: float = 1.0  # fraction of a full turn the training frames span, from facing the camera (1: all round)
 
     def __post_init__(self) -> None:
         if self.size < 16:
@@ -63,6 +65,8 @@ class SynthConfig:
             raise ValueError(f"pose_noise_deg: must lie in [0, 90] degrees, got {self.pose_noise_deg}")
         if not 0.1 <= self.fill <= 0.95:
             raise ValueError(f"fill: must lie in [0.1, 0.95], got {self.fill}")
+        if not (isinstance(self.coverage, (int, float)) and 0.0 < self.coverage <= 1.0):
+            raise ValueError(f"coverage: must lie in (0, 1] (fraction of a full turn), got {self.coverage!r}")
         if self.supersample < 1 or self.texture_size < 64:
             raise ValueError(f"supersample/texture_size: got {self.supersample}/{self.texture_size}")
 
@@ -115,7 +119,7 @@ def plan_sequences(mesh: SkinnedMesh, cfg: SynthConfig) -> Sequences:
     n_train = cfg.frames - n_test
     center = np.array([0.0, 0.0, 0.5 * (mesh.vertices[:, 2].min() + mesh.vertices[:, 2].max())])
     K = framing_intrinsics(mesh, cfg)
-    parts = [motions.turn_in_place(sk, n_train)]
+    parts = [motions.turn_in_place(sk, n_train, turns=cfg.coverage)]
     views = [orbit_viewmat(center, np.deg2rad(TRAIN_VIEW[0]), np.deg2rad(TRAIN_VIEW[1]), TRAIN_VIEW[2])]
     counts = np.full(len(TEST_VIEWS), n_test // len(TEST_VIEWS))
     counts[: n_test % len(TEST_VIEWS)] += 1

@@ -13,6 +13,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--test-fraction", type=float, default=0.2, help="fraction of frames in the test split (default 0.2)")
     parser.add_argument("--pose-noise", type=float, default=0.0, metavar="DEG",
                         help="std in degrees of the noise added to the stored poses, mimicking fitted parameters (default 0)")
+    parser.add_argument("--coverage", type=float, default=1.0, metavar="FRACTION",
+                        help="fraction of a full turn the training frames span, from facing the camera: 1 all round "
+                             "(default), 0.5 half a turn, 0.2 front only (a capture seen from one side)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing subject folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -24,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 
     cfg = SynthConfig(seed=args.seed, size=args.size, frames=args.frames, test_fraction=args.test_fraction,
-                      pose_noise_deg=args.pose_noise)
+                      pose_noise_deg=args.pose_noise, coverage=args.coverage)
     start = time.perf_counter()
     subject = synthesize_subject(cfg, args.out, overwrite=args.overwrite, progress=not args.quiet)
     seconds = time.perf_counter() - start

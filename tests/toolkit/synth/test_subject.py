@@ -89,7 +89,8 @@ def test_refuses_to_overwrite(subject_dir):
 
 @pytest.mark.parametrize(
     "kwargs, field",
-    [({"size": 8}, "size"), ({"frames": 3}, "frames"), ({"pose_noise_deg": -1.0}, "pose_noise_deg"), ({"test_fraction": 1.0}, "test_fraction")],
+    [({"size": 8}, "size"), ({"frames": 3}, "frames"), ({"pose_noise_deg": -1.0}, "pose_noise_deg"), ({"test_fraction": 1.0}, "test_fraction"),
+     ({"coverage": 0.0}, "coverage"), ({"coverage": 1.5}, "coverage")],
 )
 def test_bad_config_is_named(kwargs, field):
     with pytest.raises(ValueError, match=field):
@@ -107,3 +108,20 @@ def test_yaw_turns_the_posed_body_rigidly():
     turned = _yawed(m, 1.1, mesh.skeleton.joints[0])
     Rz = axis_angle_to_matrix(np.array([0.0, 0.0, 1.1]))
     np.testing.assert_allclose(mesh.pose(turned.pose[2], turned.trans[2]), mesh.pose(m.pose[2], m.trans[2]) @ Rz.T, atol=1e-9)
+
+
+def test_coverage_limits_the_training_turn():
+    """coverage c: the training frames' root turns through c of a full turn about z, the test frames are unchanged."""
+    from trioman.toolkit.synth.subject import plan_sequences
+
+    from trioman.toolkit.synth.subject import build_body
+
+    mesh, _ = build_body(SynthConfig(seed=1, **TINY))
+    full, third = (plan_sequences(mesh, SynthConfig(seed=1, coverage=c, **TINY)) for c in (1.0, 1 / 3))
+    train = [i for i, s in enumerate(full.split) if s == "train"]
+    test = [i for i, s in enumerate(full.split) if s == "test"]
+    yaw = third.pose[train, 0, 2]
+    assert yaw.min() >= -1e-9 and yaw.max() <= 2 * np.pi / 3 + 1e-9 and yaw.max() > 0.5 * 2 * np.pi / 3
+    assert full.pose[train, 0, 2].max() > 1.9 * np.pi  # all round
+    np.testing.assert_array_equal(full.pose[test], third.pose[test])
+
