@@ -20,7 +20,8 @@ import onnx
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
-from trioman.runtime.formats.avatar import ONNX_INPUT, ONNX_OUTPUTS, save_avatar
+from trioman.runtime.formats.avatar import AVATAR_FOLDER, ONNX_INPUT, ONNX_OUTPUTS, save_avatar
+from trioman.runtime.image_io import check_folder_target
 from trioman.runtime.skeleton import Skeleton
 from trioman.toolkit.avatar.model import GaussianAvatar
 
@@ -205,8 +206,10 @@ def check_onnx_parity(model: GaussianAvatar, proto: onnx.ModelProto, atol: float
 
 
 def export_model(model: GaussianAvatar, out: str | Path, *, body_model: str, pose_dependent: bool = True,
-                 source: dict | None = None, posed: dict | None = None, overwrite: bool = False):
-    """Bake ``model`` and write an avatar folder. -> (runtime Avatar, info dict)."""
+                 source: dict | None = None, posed: dict | None = None, overwrite: bool = False,
+                 inputs: Sequence[str | Path | None] = ()):
+    """Bake ``model`` and write an avatar folder (``overwrite`` and ``inputs``: ``save_avatar``'s).
+    -> (runtime Avatar, info dict)."""
     t0 = time.perf_counter()
     proto, parity = None, None
     if pose_dependent and model.cfg.pose_dependent:
@@ -215,7 +218,7 @@ def export_model(model: GaussianAvatar, out: str | Path, *, body_model: str, pos
     avatar = save_avatar(
         out, skeleton=skeleton_of(model), gaussians=bake(model), body_model=body_model,
         pose_joints=pose_joint_names(model), pose_dependent_onnx=None if proto is None else proto.SerializeToString(),
-        source=source, posed=posed, overwrite=overwrite,
+        source=source, posed=posed, overwrite=overwrite, inputs=inputs,
     )
     return avatar, {"seconds": time.perf_counter() - t0, "onnx_parity_max_abs": parity}
 
@@ -231,8 +234,7 @@ def export_avatar(run: str | Path, out: str | Path, checkpoint: str | Path | Non
     from trioman.toolkit.train.checkpoint import latest_checkpoint
 
     out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise FileExistsError(f"{out}: exists and is not empty (pass --overwrite to replace it)")
+    check_folder_target(out, overwrite, AVATAR_FOLDER, (run, checkpoint))  # before any work; again with the subject
     ckpt = Path(checkpoint) if checkpoint else latest_checkpoint(Path(run))
     model, subject, _, step = load_run(run, ckpt)
     posed = {}
@@ -244,4 +246,4 @@ def export_avatar(run: str | Path, out: str | Path, checkpoint: str | Path | Non
     source = {"run": str(Path(run).resolve()), "checkpoint": str(Path(ckpt).resolve()) if ckpt else None,
               "step": step, "subject": str(subject.root.resolve())}
     return export_model(model, out, body_model=subject.body_model, pose_dependent=pose_dependent, source=source,
-                        posed=posed, overwrite=overwrite)
+                        posed=posed, overwrite=overwrite, inputs=(run, ckpt, subject.root))

@@ -58,7 +58,15 @@ from torch import nn
 from trioman import __version__
 from trioman.runtime import models as rt
 from trioman.runtime.formats.avatar import sha256_file
-from trioman.runtime.image_io import atomic_folder, check_folder_target, fsync_dir, fsync_file, temp_sibling, write_synced
+from trioman.runtime.image_io import (
+    FolderKind,
+    atomic_folder,
+    check_folder_target,
+    fsync_dir,
+    fsync_file,
+    temp_sibling,
+    write_synced,
+)
 from trioman.runtime.metrics import psnr
 
 OPSET = 17
@@ -84,6 +92,9 @@ VARIANTS = ("fp32", "int8", "fp16")
 # accuracy (docs/findings.md, "ONNX export").
 REFINER_INT8_OPS = ("Conv", "MatMul", "Gemm")
 EXPORT_JSON = "export.json"
+# What --overwrite may replace (image_io.check_folder_target): an export folder of exactly these files.
+EXPORT_FOLDER = FolderKind("ONNX export", EXPORT_JSON, files=(EXPORT_JSON, "refiner*.onnx", "examiner*.onnx",
+                                                              "refiner*.onnx.data", "examiner*.onnx.data"))
 REPORT_FORMAT = "trioman-onnx-export"
 # fp16: ops kept in fp32 on top of onnxruntime's default block list (overflow-prone reductions and
 # normalisations: LayerNorm/GroupNorm squares, softmax exponentials; Resize as the reference suggests).
@@ -900,7 +911,8 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
         raise ExportError("out: the output folder is required (--out)")
     variants = _check_variants(variants)
     out = Path(out)
-    check_folder_target(out, overwrite)
+    read = [x for x in (refiner, examiner, *(calibration or ())) if isinstance(x, (str, os.PathLike))]
+    check_folder_target(out, overwrite, EXPORT_FOLDER, read)
     calibration = [Path(p) for p in calibration] if calibration else None
     for k, v in (("calibration_frames", calibration_frames), ("gate_frames", gate_frames)):
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
@@ -923,7 +935,7 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
 
         say(f"reading {len(calibration)} triplet file(s)")
         triplets = TripletSet.load(calibration)
-    with atomic_folder(out, overwrite) as tmp:
+    with atomic_folder(out, overwrite, EXPORT_FOLDER) as tmp:
         for kind, what in (("refiner", refiner), ("examiner", examiner)):
             if what is None:
                 continue

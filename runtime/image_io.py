@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fnmatch
 import os
 import re
 import secrets
 import shutil
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterable, Iterator
 
@@ -166,24 +168,103 @@ def write_synced(path: PathLike, data: bytes | Callable[[BinaryIO], None]) -> No
         os.fsync(f.fileno())
 
 
-def check_folder_target(path: PathLike, overwrite: bool) -> None:
-    """FileExistsError unless a new folder may take ``path``: nothing there, an empty folder, or a folder
-    and ``overwrite``."""
+@dataclass(frozen=True)
+class FolderKind:
+    """One kind of folder a command writes (a subject, an avatar, ...): what ``overwrite`` may replace.
+
+    ``marker``: the metadata file that makes a folder this kind; ``files``: the patterns (fnmatch) of the
+    files it holds at the top (the marker included); ``folders``: each sub-folder's name -> the patterns
+    of the files in it. Temporary names (:func:`is_temp_name`) belong to every kind (what a kill -9 left).
+    Anything else is foreign: a folder holding it is never replaced."""
+
+    name: str  # in messages: "a trioman <name> folder"
+    marker: str
+    files: tuple[str, ...] = ()
+    folders: tuple[tuple[str, tuple[str, ...]], ...] = ()
+
+    def first_foreign(self, path: PathLike) -> Path | None:
+        """The first entry of the folder ``path`` (sorted, top level first) that this kind does not write: its
+        first entry when the marker is missing. None when the folder is this kind's and holds nothing else."""
+        path = Path(path)
+        entries = sorted(path.iterdir(), key=lambda p: p.name)
+        if not (path / self.marker).is_file():
+            return next((p for p in entries if not is_temp_name(p.name)), None)
+        folders = dict(self.folders)
+        for entry in entries:
+            name = entry.name
+            if is_temp_name(name):
+                continue
+            if name in folders and entry.is_dir() and not entry.is_symlink():
+                for inner in sorted(entry.iterdir(), key=lambda p: p.name):
+                    if not (is_temp_name(inner.name) or (inner.is_file() and not inner.is_symlink()
+                                                         and _matches(inner.name, folders[name]))):
+                        return inner
+            elif not (entry.is_file() and not entry.is_symlink() and _matches(name, self.files)):
+                return entry
+        return None
+
+
+def _matches(name: str, patterns: Iterable[str]) -> bool:
+    return any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns)
+
+
+def check_not_input(path: PathLike, inputs: Iterable[PathLike | None]) -> None:
+    """ValueError when the output folder ``path`` is one of ``inputs``, holds one, or lies inside one: a command
+    never writes over or into what it reads (None entries are skipped)."""
+    target = Path(path).resolve()
+    for given in inputs:
+        if given is None:
+            continue
+        source = Path(given).resolve()
+        if target == source:
+            raise ValueError(f"{path}: is the input {given}; write the output to another folder")
+        if target in source.parents:
+            raise ValueError(f"{path}: holds the input {given}; write the output to another folder")
+        if source in target.parents:
+            raise ValueError(f"{path}: lies inside the input {given}; write the output outside it")
+
+
+def check_folder_target(path: PathLike, overwrite: bool, kind: FolderKind | None = None,
+                        inputs: Iterable[PathLike | None] = ()) -> None:
+    """The one rule of every command that writes a folder (``--overwrite``; docs/design.md, "Conventions").
+
+    A new folder may take ``path`` when nothing is there or an empty folder; a non-empty folder is replaced
+    only with ``overwrite`` and only when it is a folder of ``kind`` holding nothing but what that kind
+    writes (without ``kind``: never). Otherwise a FileExistsError names the first foreign file. ``path``
+    may not be, hold or lie inside one of ``inputs`` (ValueError, :func:`check_not_input`)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{path}: exists and is not a folder")
-    if path.is_dir() and any(path.iterdir()) and not overwrite:
-        raise FileExistsError(f"{path}: folder exists and is not empty (pass overwrite=True / --overwrite to replace it)")
+    check_not_input(path, inputs)
+    if not path.is_dir() or not any(path.iterdir()):
+        return
+    if kind is None:
+        raise FileExistsError(f"{path}: folder exists and is not empty (choose another output folder)")
+    foreign = kind.first_foreign(path)
+    if foreign is None:
+        if not overwrite:
+            raise FileExistsError(f"{path}: folder exists and is not empty (pass overwrite=True / --overwrite to "
+                                  f"replace it)")
+        return
+    why = (f"the folder holds no {kind.marker}: not a trioman {kind.name} folder" if not (path / kind.marker).is_file()
+           else f"not part of a trioman {kind.name} folder")
+    if overwrite:
+        raise FileExistsError(f"--overwrite: {foreign} was not written by trioman ({why}); refusing to replace {path} "
+                              f"(move it away, or choose another output folder)")
+    raise FileExistsError(f"{path}: folder exists and holds {foreign}, which trioman did not write ({why}); choose "
+                          f"another output folder")
 
 
 @contextlib.contextmanager
-def atomic_folder(path: PathLike, overwrite: bool = False) -> Iterator[Path]:
+def atomic_folder(path: PathLike, overwrite: bool = False, kind: FolderKind | None = None,
+                  inputs: Iterable[PathLike | None] = ()) -> Iterator[Path]:
     """Yield a new temporary folder next to ``path`` (its parents created); on success fsync every folder in
-    it and rename it onto ``path``, whose old folder (:func:`check_folder_target`, checked before and at the
-    rename) is removed once the new one is in place. If the block raises, the temporary folder is removed
-    and ``path`` is left untouched. Its files are written with :func:`write_synced` (or fsync'ed)."""
-    path = Path(path)
-    check_folder_target(path, overwrite)
+    it and rename it onto ``path``, whose old folder (:func:`check_folder_target` with ``overwrite``, ``kind``
+    and ``inputs``, checked before and at the rename) is removed once the new one is in place. If the block
+    raises, the temporary folder is removed and ``path`` is left untouched. Its files are written with
+    :func:`write_synced` (or fsync'ed)."""
+    path, inputs = Path(path), tuple(inputs)
+    check_folder_target(path, overwrite, kind, inputs)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_sibling(path)
     os.mkdir(tmp)
@@ -191,7 +272,7 @@ def atomic_folder(path: PathLike, overwrite: bool = False) -> Iterator[Path]:
         yield tmp
         for folder, _, _ in os.walk(tmp, topdown=False):
             fsync_dir(folder)
-        check_folder_target(path, overwrite)  # a folder may have appeared while the block wrote
+        check_folder_target(path, overwrite, kind, inputs)  # a folder may have appeared while the block wrote
         old = None
         if path.is_dir():
             if any(path.iterdir()):

@@ -33,7 +33,7 @@ from trioman.runtime.formats.common import (
     _write_npz,
     check_header,
 )
-from trioman.runtime.image_io import atomic_folder, check_folder_target, write_synced
+from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_target, write_synced
 from trioman.runtime.skeleton import Skeleton
 
 AVATAR_FORMAT = "trioman-avatar"
@@ -49,6 +49,9 @@ ONNX_OUTPUTS = ("d_offset", "d_log_scale", "d_rgb")
 WEIGHT_SUM_TOL = 1e-4
 
 _FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_quats", "skin_weights")
+# What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
+AVATAR_FOLDER = FolderKind("avatar", AVATAR_JSON, files=(AVATAR_JSON, GAUSSIANS_NPZ, SKELETON_NPZ, POSE_ONNX, CANONICAL_PLY,
+                                                     "posed_*.ply"))
 _EXTRA_PLY = re.compile(r"posed_[A-Za-z0-9_.\-]{1,100}\.ply")  # fullmatch
 
 
@@ -257,19 +260,22 @@ def save_avatar(
     source: Mapping[str, Any] | None = None,
     posed: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,  # name -> (pose [J,3], trans [3]): posed_<name>.ply
     overwrite: bool = False,
+    inputs: Sequence[str | os.PathLike | None] = (),
 ) -> Avatar:
     """Validate and write an avatar folder at ``path``; returns it loaded back (``load_avatar``).
 
     Everything is written into a temporary sibling folder renamed onto ``path`` at the end: an error
-    leaves nothing at ``path``. An existing non-empty folder is replaced only with ``overwrite=True``.
+    leaves nothing at ``path``. An existing non-empty folder is replaced only with ``overwrite=True`` and only
+    when it is an avatar folder holding nothing else (``AVATAR_FOLDER``); ``path`` may not be, hold or lie
+    inside one of ``inputs`` (what the caller read: the run, its checkpoint and subject).
     canonical.ply holds the avatar at the zero pose with zero translation (pose-dependent terms included).
     """
     from trioman import __version__
     from trioman.runtime.ply import write_ply
 
     where = "save_avatar"
-    target = Path(path)
-    check_folder_target(target, overwrite)
+    target, inputs = Path(path), tuple(inputs)
+    check_folder_target(target, overwrite, AVATAR_FOLDER, inputs)
     if not isinstance(skeleton, Skeleton):
         raise FormatError(f"{where}: skeleton: expected a Skeleton, got {type(skeleton).__name__}")
     positions = np.asarray(gaussians.get("positions", np.zeros((0, 3))))
@@ -306,7 +312,7 @@ def save_avatar(
         session = _open_onnx(bytes(pose_dependent_onnx), f"{where}: {POSE_ONNX}", skeleton.num_joints, N, 3 if anisotropic else 1)
     avatar = Avatar(skeleton, arrays, meta, session)
 
-    with atomic_folder(target, overwrite) as tmp:
+    with atomic_folder(target, overwrite, AVATAR_FOLDER, inputs) as tmp:
         _write_npz(tmp / GAUSSIANS_NPZ, arrays)
         _write_npz(tmp / SKELETON_NPZ, {"joint_names": np.array(skeleton.joint_names, dtype=np.str_),
                                         "parents": skeleton.parents, "joints": skeleton.joints})

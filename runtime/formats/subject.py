@@ -24,7 +24,15 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import atomic_folder, check_folder_target, encode_png, png_header, read_png, write_synced
+from trioman.runtime.image_io import (
+    FolderKind,
+    atomic_folder,
+    check_folder_target,
+    encode_png,
+    png_header,
+    read_png,
+    write_synced,
+)
 from trioman.runtime.formats.common import (
     FormatError,
     _fail,
@@ -52,6 +60,11 @@ MASKS_DIR = "masks"
 # Tolerances for camera checks (the arrays are stored as float32).
 ORTHONORMAL_TOL = 1e-3  # max |R R^T - I|
 LAST_ROW_TOL = 1e-6
+
+CONTACT_SHEET_PNG = "contact_sheet.png"  # written beside a subject by trioman synth
+# What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
+SUBJECT_FOLDER = FolderKind("subject", SUBJECT_JSON, files=(SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, CONTACT_SHEET_PNG),
+                            folders=((IMAGES_DIR, ("*.png",)), (MASKS_DIR, ("*.png",))))
 
 _FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}")  # fullmatch: "$" would pass a final newline
 _FLOAT_ARRAYS = ("poses", "trans", "K", "viewmat")
@@ -274,12 +287,20 @@ def _check_frames(
         raise _fail(where, "sequence", f"subject.json lists sequence(s) {unused} that no frame uses")
     names = out["frame_names"].tolist()
     for i, name in enumerate(names):
-        if not _FRAME_NAME.fullmatch(name):
-            raise _fail(where, "frame_names", f"frame {i}: {name!r} is not a safe file stem (letters, digits, '_', '-', '.')")
+        check_frame_name(name, where, f"frame_names: frame {i}")
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})[:5]
         raise _fail(where, "frame_names", f"duplicate name(s) {dup}")
     return out
+
+
+def check_frame_name(name: Any, where: Any, field: str) -> str:
+    """The one rule of a frame name, wherever it comes from (frames.npz, an augment record): a file stem of
+    letters, digits, '_', '-' and '.', not starting with '.', at most 200 characters, so ``images/<name>.png``
+    stays inside its folder. -> ``name``; a FormatError naming ``where`` and ``field`` otherwise."""
+    if not (isinstance(name, str) and _FRAME_NAME.fullmatch(name)):
+        raise _fail(where, field, f"{name!r} is not a safe file stem (letters, digits, '_', '-', '.')")
+    return name
 
 
 # --------------------------------------------------------------------------------------------------
@@ -366,6 +387,7 @@ def save_subject(
     frame_names: Iterable[str] | None = None,  # [N], default "000000", "000001", ...
     poses_true: np.ndarray | None = None,  # [N, J, 3]
     overwrite: bool = False,
+    inputs: Iterable[str | os.PathLike | None] = (),
 ) -> Subject:
     """Write a subject folder at ``path``; returns the written Subject (arrays as they were stored).
 
@@ -373,11 +395,13 @@ def save_subject(
     temporary sibling folder that is renamed onto ``path`` at the end: an error or interruption
     (including one raised by the ``images``/``masks`` iterables) leaves nothing at ``path`` and no
     temporary folder. Images and masks are consumed one at a time. An existing non-empty folder at
-    ``path`` is replaced only with ``overwrite=True``.
+    ``path`` is replaced only with ``overwrite=True`` and only when it is a subject folder holding nothing
+    else (``SUBJECT_FOLDER``); ``path`` may not be, hold or lie inside one of ``inputs`` (what the caller
+    read: an import's capture).
     """
     where = "save_subject"
-    target = Path(path)
-    check_folder_target(target, overwrite)
+    target, inputs = Path(path), tuple(inputs)
+    check_folder_target(target, overwrite, SUBJECT_FOLDER, inputs)
     if not isinstance(body, SkinnedMesh):
         raise FormatError(f"{where}: body: expected a SkinnedMesh, got {type(body).__name__}")
 
@@ -416,7 +440,7 @@ def save_subject(
     }
     frames = _check_frames(arrays, where, num_frames, body.skeleton.num_joints, seq_order)
 
-    with atomic_folder(target, overwrite) as tmp:
+    with atomic_folder(target, overwrite, SUBJECT_FOLDER, inputs) as tmp:
         _write_npz(tmp / BODY_NPZ, body.to_arrays())
         _write_npz(tmp / FRAMES_NPZ, frames)
         _write_frames(tmp, frames["frame_names"].tolist(), images, masks, int(width), int(height))

@@ -148,6 +148,21 @@ def tiny_run(tmp_path_factory):
     return train(root / "s", root / "run", cfg, progress=False)
 
 
+def test_export_overwrite_replaces_only_an_avatar_folder_and_never_its_input(tiny_run, tmp_path, capsys):
+    run_files = sorted(p.name for p in tiny_run.iterdir())
+    thesis = tmp_path / "thesis"
+    thesis.mkdir()
+    (thesis / "thesis.txt").write_text("mine")
+    cases = [(tiny_run, f"{tiny_run}: is the input {tiny_run}"),
+             (tiny_run.parent, f"{tiny_run.parent}: holds the input {tiny_run}"),
+             (tiny_run / "avatar", f"{tiny_run / 'avatar'}: lies inside the input {tiny_run}"),
+             (thesis, f"--overwrite: {thesis / 'thesis.txt'} was not written by trioman (the folder holds no avatar.json")]
+    for out, message in cases:
+        assert main(["export", "avatar", str(tiny_run), "--out", str(out), "--overwrite"]) == 1
+        assert message in capsys.readouterr().err
+    assert sorted(p.name for p in tiny_run.iterdir()) == run_files and (thesis / "thesis.txt").read_text() == "mine"
+
+
 def test_export_command_end_to_end(tiny_run, tmp_path, capsys):
     out = tmp_path / "avatar"
     assert main(["export", "avatar", str(tiny_run), "--out", str(out), "--ply-frame", "1"]) == 0

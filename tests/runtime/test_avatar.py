@@ -125,6 +125,10 @@ def test_refuses_to_overwrite_and_bad_pose(tmp_path):
     with pytest.raises(FileExistsError, match="not empty"):
         write(tmp_path)
     write(tmp_path, overwrite=True)
+    (tmp_path / "a" / "thesis.txt").write_text("mine")  # a file of the user's: the folder is no longer replaced
+    with pytest.raises(FileExistsError, match=r"--overwrite: .*thesis.txt was not written by trioman"):
+        write(tmp_path, overwrite=True)
+    assert (tmp_path / "a" / "thesis.txt").is_file() and (tmp_path / "a" / "avatar.json").is_file()
     with pytest.raises(ValueError, match=r"pose: expected shape \[\.\.\., 5, 3\]"):
         av.gaussians(np.zeros((4, 3)), np.zeros(3))
     pose = np.zeros((5, 3))

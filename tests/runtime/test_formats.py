@@ -178,6 +178,26 @@ def test_save_refuses_to_overwrite(subject_dir):
     assert sorted(p.name for p in subject_dir.parent.iterdir()) == ["subj"]
 
 
+def test_overwrite_never_replaces_a_folder_that_is_not_a_subject(subject_dir, tmp_path):
+    # A raw capture (no subject.json), a folder holding a thesis, a subject with a file of the user's: all kept.
+    capture = tmp_path / "capture"
+    for name in ("cameras.txt", "frames/000000.png", "smplx_fits/000000.json"):
+        (capture / name).parent.mkdir(parents=True, exist_ok=True)
+        (capture / name).write_text("raw")
+    (subject_dir / "notes.txt").write_text("mine")
+    images, masks = make_images(seed=5)
+    for out, foreign in ((capture, capture / "cameras.txt"), (subject_dir, subject_dir / "notes.txt")):
+        with pytest.raises(FileExistsError, match=rf"--overwrite: {foreign} was not written by trioman"):
+            save_subject(out, images=images, masks=masks, overwrite=True, **make_fields())
+    assert (capture / "frames" / "000000.png").read_text() == "raw" and (subject_dir / "notes.txt").is_file()
+    (subject_dir / "notes.txt").unlink()
+    (subject_dir / "contact_sheet.png").write_bytes(b"png")  # trioman synth's: part of a subject folder
+    with pytest.raises(ValueError, match=rf"{capture / 'subject'}: lies inside the input {capture}"):
+        save_subject(capture / "subject", images=images, masks=masks, inputs=[capture], **make_fields())
+    save_subject(subject_dir, images=images, masks=masks, overwrite=True, **make_fields())
+    assert not (capture / "subject").exists() and load_subject(subject_dir).num_frames == N
+
+
 def test_save_into_existing_empty_folder(tmp_path):
     (tmp_path / "empty").mkdir()
     images, masks = make_images()

@@ -150,12 +150,17 @@ def test_atomic_folder_success_failure_and_overwrite(tmp_path):
     with atomic_folder(target) as tmp:
         (tmp / "sub").mkdir()
         write_synced(tmp / "sub" / "a.npz", lambda f: np.savez(f, x=np.arange(3)))
+        write_synced(tmp / "m.json", b"{}")
         assert not target.exists()  # readers see nothing until the rename
     assert np.load(target / "sub" / "a.npz")["x"].tolist() == [0, 1, 2]
-    with pytest.raises(FileExistsError, match=r"out: folder exists and is not empty \(pass overwrite=True"):
-        with atomic_folder(target):
+    with pytest.raises(FileExistsError, match=r"out: folder exists and is not empty \(choose another"):
+        with atomic_folder(target, overwrite=True):  # no kind: nothing is recognised, nothing replaced
             pass
-    with atomic_folder(target, overwrite=True) as tmp:
+    kind = image_io.FolderKind("test", "m.json", files=("m.json", "b.bin"), folders=(("sub", ("*.npz",)),))
+    with pytest.raises(FileExistsError, match=r"out: folder exists and is not empty \(pass overwrite=True"):
+        with atomic_folder(target, kind=kind):
+            pass
+    with atomic_folder(target, overwrite=True, kind=kind) as tmp:
         write_synced(tmp / "b.bin", b"new")
     assert os.listdir(target) == ["b.bin"] and os.listdir(tmp_path / "deep") == ["out"]
     with pytest.raises(FileExistsError, match="late: folder exists and is not empty"):  # appeared while writing
@@ -299,3 +304,51 @@ def test_a_video_keeps_odd_sides_by_padding_them(tmp_path, w, h):
     ok, got = cap.read()
     cap.release()
     assert ok and got.shape == (h + h % 2, w + w % 2, 3)
+
+
+SUBJECTISH = image_io.FolderKind("thing", "thing.json", files=("thing.json", "data.npz"), folders=(("images", ("*.png",)),))
+
+
+def _folder(root, files):
+    for name in files:
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text("x")
+    return root
+
+
+@pytest.mark.parametrize("files, foreign, why", [
+    (["thesis.txt", "z.png"], "thesis.txt", "the folder holds no thing.json: not a trioman thing folder"),
+    (["frames/0.png", "cameras.txt"], "cameras.txt", "the folder holds no thing.json"),
+    (["thing.json", "data.npz", "notes.md"], "notes.md", "not part of a trioman thing folder"),
+    (["thing.json", "images/0.png", "images/raw.jpg"], "images/raw.jpg", "not part of a trioman thing folder"),
+    (["thing.json", "images/deep/0.png"], "images/deep", "not part of a trioman thing folder"),
+], ids=["no-marker", "capture", "extra-file", "extra-frame", "nested"])
+def test_overwrite_replaces_only_a_folder_of_its_own_kind(tmp_path, files, foreign, why):
+    out = _folder(tmp_path / "out", files)
+    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+    with pytest.raises(FileExistsError, match=rf"--overwrite: {out / foreign} was not written by trioman \({why}"):
+        with atomic_folder(out, overwrite=True, kind=SUBJECTISH) as tmp:
+            write_synced(tmp / "thing.json", b"{}")
+    with pytest.raises(FileExistsError, match=rf"holds {out / foreign}, which trioman did not write"):
+        image_io.check_folder_target(out, False, SUBJECTISH)
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before  # nothing removed
+    assert sorted(os.listdir(tmp_path)) == ["out"]  # no temporary folder left
+
+
+def test_overwrite_replaces_its_own_kind_with_temporary_leftovers(tmp_path):
+    out = _folder(tmp_path / "out", ["thing.json", "data.npz", "images/0.png", "images/.0.png.0123abcd.tmp.png",
+                                     ".data.npz.89abcdef.tmp.npz"])
+    with atomic_folder(out, overwrite=True, kind=SUBJECTISH) as tmp:
+        write_synced(tmp / "thing.json", b"{}")
+    assert os.listdir(out) == ["thing.json"]
+
+
+@pytest.mark.parametrize("out, given, word", [
+    ("in", "in", "is the input"), ("parent", "parent/in", "holds the input"), ("in/out", "in", "lies inside the input")])
+def test_an_output_folder_is_never_its_own_input(tmp_path, out, given, word):
+    _folder(tmp_path / "parent" / "in", ["thing.json"])
+    _folder(tmp_path / "in", ["thing.json", "data.npz"])
+    with pytest.raises(ValueError, match=rf"{tmp_path / out}: {word} {tmp_path / given}"):
+        with atomic_folder(tmp_path / out, overwrite=True, kind=SUBJECTISH, inputs=[None, tmp_path / given]):
+            pass
+    assert (tmp_path / given / "thing.json").is_file() and not (tmp_path / "in" / "out").exists()
