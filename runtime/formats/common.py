@@ -38,19 +38,26 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _load_json(path: Path) -> Any:
+def read_json(path: str | os.PathLike, missing: str = "missing file") -> Any:
+    """The one reader of a JSON file the user gives: NaN and Infinity refused, and a missing, unreadable,
+    malformed or too deeply nested file (Python's parser recurses) is a FormatError naming it."""
+    path = Path(path)
     if not path.is_file():
-        raise FormatError(f"{path}: missing file (is this a TrioMan subject folder?)")
+        raise FormatError(f"{path}: {missing}")
 
     def reject_constant(name: str) -> Any:
         raise ValueError(f"{name} is not valid JSON")
 
     try:
         return json.loads(path.read_text(encoding="utf-8"), parse_constant=reject_constant)
-    except json.JSONDecodeError as err:
-        raise FormatError(f"{path}: malformed JSON: {err}") from None
     except (ValueError, UnicodeDecodeError) as err:
         raise FormatError(f"{path}: malformed JSON: {err}") from None
+    except RecursionError:
+        raise FormatError(f"{path}: malformed JSON: nested too deeply to read") from None
+
+
+def _load_json(path: Path) -> Any:
+    return read_json(path, "missing file (is this a TrioMan subject folder?)")
 
 
 def _load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | None = None) -> dict[str, np.ndarray]:

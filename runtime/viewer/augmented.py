@@ -9,8 +9,9 @@ by the run's avatar (numpy splat renderer) as augment rendered them.
 
 from __future__ import annotations
 
-import json
+import math
 import os
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,8 @@ import numpy as np
 
 from trioman.runtime.augment import AUGMENT_JSON, RECORDS_DIR
 from trioman.runtime.formats import FormatError, load_avatar, load_subject
-from trioman.runtime.formats.subject import IMAGES_DIR
+from trioman.runtime.formats.common import read_json
+from trioman.runtime.formats.subject import IMAGES_DIR, check_frame_name
 from trioman.runtime.generator import GeneratorConfig, sample
 from trioman.runtime.image_io import read_png
 from trioman.runtime.preview import contact_sheet
@@ -31,23 +33,102 @@ _KEPT, _OTHER = (30, 160, 60), (150, 150, 150)
 
 
 def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """augment.json and the records (source frame order) of an augment output folder."""
+    """augment.json and the records (source frame order) of an augment output folder, checked: a problem is a
+    FormatError naming the file and the field (docs/design.md, "What a command may delete, and what it may
+    read": names from records are frame names)."""
     root = Path(path)
     if not root.is_dir():
         raise FormatError(f"{root}: augment output folder not found")
     meta_path = root / AUGMENT_JSON
-    if not meta_path.is_file():
-        raise FormatError(f"{meta_path}: missing file (is {root} a trioman augment output?)")
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        settings = meta["settings"]
-        records = [json.loads(p.read_text(encoding="utf-8")) for p in sorted((root / RECORDS_DIR).glob("*.json"))]
-    except (ValueError, KeyError, TypeError) as err:
-        raise FormatError(f"{meta_path}: unreadable augment output ({type(err).__name__}: {err})") from None
+    meta = read_json(meta_path, f"missing file (is {root} a trioman augment output?)")
+    settings = _check_settings(meta, meta_path)
+    records = []
+    for record_path in sorted((root / RECORDS_DIR).glob("*.json")):
+        records.append(_check_record(read_json(record_path), record_path, settings["per_frame"]))
     if not records:
         raise FormatError(f"{root / RECORDS_DIR}: no records (the run finished no source frame)")
     records.sort(key=lambda r: r["source"]["index"])
-    return {"settings": settings, "summary": meta.get("summary", {})}, records
+    summary = meta.get("summary", {})
+    return {"settings": settings, "summary": summary if isinstance(summary, dict) else {}}, records
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_settings(meta: Any, where: Path) -> dict[str, Any]:
+    """augment.json's settings: the subject and avatar paths, per_frame and the Generator's settings."""
+    settings = meta.get("settings") if isinstance(meta, dict) else None
+    if not isinstance(settings, dict):
+        raise FormatError(f"{where}: settings: missing or not an object")
+    for key in ("subject", "avatar"):
+        if not (isinstance(settings.get(key), dict) and isinstance(settings[key].get("path"), str)):
+            raise FormatError(f"{where}: settings.{key}.path: missing or not a string")
+    per_frame = settings.get("per_frame")
+    if not (_is_int(per_frame) and per_frame >= 1):
+        raise FormatError(f"{where}: settings.per_frame: expected an integer >= 1, got {per_frame!r}")
+    generator = settings.get("generator")
+    if not isinstance(generator, dict):
+        raise FormatError(f"{where}: settings.generator: missing or not an object")
+    known = {f.name for f in fields(GeneratorConfig)}
+    unknown = sorted(set(generator) - known)
+    if unknown:
+        raise FormatError(f"{where}: settings.generator: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    try:
+        GeneratorConfig(**generator)
+    except (ValueError, TypeError) as err:
+        raise FormatError(f"{where}: settings.generator: {err}") from None
+    return settings
+
+
+def _check_record(record: Any, where: Path, per_frame: int) -> dict[str, Any]:
+    """One record: its source frame, seed, per_frame candidates and the frames it kept, whose names are frame
+    names (``check_frame_name``), so they stay file names inside images/."""
+    def fail(field: str, problem: str) -> FormatError:
+        return FormatError(f"{where}: {field}: {problem}")
+
+    if not isinstance(record, dict):
+        raise fail("record", "not an object")
+    source = record.get("source")
+    if not (isinstance(source, dict) and _is_int(source.get("index")) and source["index"] >= 0):
+        raise fail("source.index", f"expected an integer >= 0, got {source.get('index') if isinstance(source, dict) else source!r}")
+    check_frame_name(source.get("name"), where, "source.name")
+    if not (_is_int(record.get("seed")) and record["seed"] >= 0):
+        raise fail("seed", f"expected an integer >= 0, got {record.get('seed')!r}")
+    candidates = record.get("candidates")
+    if not (isinstance(candidates, list) and len(candidates) == per_frame):
+        got = f"{len(candidates)}" if isinstance(candidates, list) else repr(candidates)
+        raise fail("candidates", f"expected a list of settings.per_frame = {per_frame} candidates, got {got}")
+    for k, c in enumerate(candidates):
+        ok = (isinstance(c, dict) and _is_int(c.get("candidate")) and isinstance(c.get("status"), str)
+              and (c.get("score") is None or (isinstance(c["score"], (int, float)) and not isinstance(c["score"], bool)
+                                              and math.isfinite(c["score"]))))
+        if not ok:
+            raise fail(f"candidates[{k}]", f"expected candidate (int), status (str) and score (number or null), got {c!r}")
+        if c.get("frame") is not None:
+            check_frame_name(c["frame"], where, f"candidates[{k}].frame")
+    frames = record.get("frames")
+    if not isinstance(frames, list):
+        raise fail("frames", f"expected a list, got {frames!r}")
+    for k, f in enumerate(frames):
+        if not (isinstance(f, dict) and _is_int(f.get("candidate"))):
+            raise fail(f"frames[{k}]", f"expected name (str) and candidate (int), got {f!r}")
+        check_frame_name(f.get("name"), where, f"frames[{k}].name")
+    chosen = record.get("chosen")
+    if not (chosen is None or _is_int(chosen)):
+        raise fail("chosen", f"expected an integer or null, got {chosen!r}")
+    return record
+
+
+def frame_path(root: str | os.PathLike, name: str, where: Any = None) -> Path:
+    """``root/images/<name>.png`` for a frame name from a record, checked: the name is a frame name and the
+    path, links resolved, lies inside ``root/images`` (FormatError naming ``where`` otherwise)."""
+    images = Path(root) / IMAGES_DIR
+    check_frame_name(name, where or images, "frame name")
+    path = images / f"{name}.png"
+    if images.resolve() not in path.resolve().parents:
+        raise FormatError(f"{where or images}: frame {name!r}: its file is a link that leads outside {images}")
+    return path
 
 
 def run_avatar_path(path: str | os.PathLike) -> Path:
@@ -72,11 +153,16 @@ class AugmentedView:
                 raise FormatError(f"{self.root / AUGMENT_JSON}: settings.{key}.path: {settings[key]['path']} not found "
                                   f"(the run's {key} moved?)")
         self.subject = load_subject(settings["subject"]["path"], check_images=False)
+        for record in self.records:
+            i, name = record["source"]["index"], record["source"]["name"]
+            if i >= self.subject.num_frames or self.subject.frame_names[i] != name:
+                raise FormatError(f"{self._record_path(record)}: source: frame {i} {name!r} is not a frame of the "
+                                  f"subject {self.subject.root} ({self.subject.num_frames} frames)")
         same = viewer.poser.avatar.root is not None and \
             Path(viewer.poser.avatar.root).resolve() == Path(settings["avatar"]["path"]).resolve()
         self.avatar = viewer.poser.avatar if same else load_avatar(settings["avatar"]["path"])
-        self.generator = GeneratorConfig(**settings["generator"])
-        self.per_frame = int(settings["per_frame"])
+        self.generator = GeneratorConfig(**settings["generator"])  # checked by read_run
+        self.per_frame = settings["per_frame"]
         self._frustums: list[Any] = []
         names = tuple(r["source"]["name"] for r in self.records)
         gui = viewer.server.gui
@@ -103,14 +189,17 @@ class AugmentedView:
             images.append(np.clip(r.rgb, 0.0, 1.0))
             labels.append(f"c{info['candidate']}{score} {info['status']}")
         for f in record["frames"]:
-            images.append(_fit(read_png(self.root / IMAGES_DIR / f"{f['name']}.png", mode="rgb"), w, h))
+            images.append(_fit(read_png(frame_path(self.root, f["name"], self._record_path(record)), mode="rgb"), w, h))
             labels.append(f"refined c{f['candidate']} (kept)")
         return images, labels
+
+    def _record_path(self, record: dict[str, Any]) -> Path:
+        return self.root / RECORDS_DIR / f"{record['source']['name']}.json"
 
     def candidates(self, record: dict[str, Any]) -> list:
         """The Generator's candidates of a record, drawn again from its frame seed."""
         s, i = self.subject, int(record["source"]["index"])
-        return sample(s.body.skeleton, s.poses[i], s.trans[i], s.viewmat[i], int(record["seed"]), self.per_frame,
+        return sample(s.body.skeleton, s.poses[i], s.trans[i], s.viewmat[i], record["seed"], self.per_frame,
                       self.generator)
 
     def show(self, name: str) -> np.ndarray:

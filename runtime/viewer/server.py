@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import io
+import ipaddress
 import socket
 import threading
 import time
@@ -39,11 +40,10 @@ class ViewerConfig:
 
 
 def check_port(host: str, port: int) -> None:
-    """Refuse a port another program holds (viser would silently take the next one)."""
+    """Refuse an address this machine does not have (viser would wait forever) and a port another program
+    holds (viser would silently take the next one), by binding them once; port 0 checks the address."""
     if not 0 <= port <= 65535:
         raise ValueError(f"--port: must lie in [0, 65535], got {port}")
-    if port == 0:
-        return
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as err:
@@ -56,7 +56,19 @@ def check_port(host: str, port: int) -> None:
             if err.errno == errno.EADDRINUSE:
                 raise ValueError(f"--port: {host}:{port} is already in use (another viewer or server); pick another "
                                  f"with --port, or --port 0 for any free one") from None
+            if err.errno == errno.EADDRNOTAVAIL:
+                raise ValueError(f"--host: {host} is not an address of this machine; use 127.0.0.1 (this machine "
+                                 f"only, the default) or one of its own addresses") from None
             raise ValueError(f"--host/--port: cannot listen on {host}:{port} ({err.strerror})") from None
+
+
+def is_local_only(host: str) -> bool:
+    """Whether ``host`` is a loopback address (or resolves only to loopback): the viewer is this machine's."""
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except socket.gaierror:
+        return False
+    return all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)
 
 
 def pack(buffer: np.ndarray, changed: dict[str, np.ndarray]) -> None:

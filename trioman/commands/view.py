@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "and its test poses in the motion picker")
     parser.add_argument("--augmented", default=None, metavar="DIR",
                         help="a trioman augment output: source frames, candidates, refined frames, Examiner scores")
-    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1, this machine only)")
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1, this machine only; 0.0.0.0 serves "
+                             "the avatar to the whole network)")
     parser.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free port)")
     parser.add_argument("--fps", type=float, default=None, help="playback rate (default: the motion's)")
     parser.add_argument("--time", type=int, default=None, metavar="N",
@@ -34,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     import threading
 
     from trioman.runtime.viewer.app import open_viewer
+    from trioman.runtime.viewer.server import is_local_only
 
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps: must be > 0, got {args.fps}")
@@ -41,6 +43,10 @@ def run(args: argparse.Namespace) -> int:
                          host=args.host, port=args.port, fps=args.fps)
     try:
         avatar = viewer.poser.avatar
+        if not is_local_only(args.host):
+            print(f"view: note: --host {args.host} serves the avatar (and any --subject or --augmented frames) to "
+                  f"everyone who can reach this machine on the network; the default 127.0.0.1 keeps it to this "
+                  f"machine", flush=True)
         if args.time is not None:
             t = viewer.time_updates(args.time)
             print(f"view: {avatar.num_gaussians:,} Gaussians ({'with' if avatar.pose_dependent else 'no'} pose-dependent "

@@ -181,3 +181,103 @@ def test_play_advances_the_frames_of_a_motion_file(avatar_dir, tmp_path):
         assert len(seen) >= 3 and int(v._frame_slider.value) in range(5)
     finally:
         v.stop()
+
+
+# ------------------------------------------------------------------------------------------------
+# what the viewer may read, and where it listens (docs/design.md, "What a command may delete, and what it may read")
+
+
+def _edit_record(augmented: Path, name: str, edit) -> Path:
+    import json
+
+    path = augmented / "records" / f"{name}.json"
+    record = json.loads(path.read_text())
+    edit(record)
+    path.write_text(json.dumps(record))
+    return path
+
+
+def _edit_settings(augmented: Path, edit) -> Path:
+    import json
+
+    path = augmented / "augment.json"
+    meta = json.loads(path.read_text())
+    edit(meta["settings"])
+    path.write_text(json.dumps(meta))
+    return path
+
+
+@pytest.fixture
+def augmented(avatar_dir, tmp_path):
+    subject = make_subject(tmp_path / "subject")
+    return make_augment_output(tmp_path / "augmented", subject, avatar_dir)
+
+
+@pytest.mark.parametrize("where, edit, message", [
+    ("000001", lambda r: r["frames"][0].update(name="../../../../outside"),
+     "frames[0].name: '../../../../outside' is not a safe file stem"),
+    ("000001", lambda r: r["source"].update(name="/etc/passwd"), "source.name: '/etc/passwd' is not a safe file stem"),
+    ("000001", lambda r: r.update(seed="abc"), "seed: expected an integer >= 0, got 'abc'"),
+    ("000001", lambda r: r.update(candidates=[{"candidate": 0}] * 2), "candidates[0]: expected candidate (int), status"),
+    ("000001", lambda r: r["source"].update(index=7), "source: frame 7 '000001' is not a frame of the subject"),
+    ("augment", lambda s: s["generator"].update(colour=1), "settings.generator: unknown key 'colour'"),
+    ("augment", lambda s: s["generator"].update(min_distance=-1), "settings.generator: min_distance: must be a number"),
+    ("augment", lambda s: s.update(per_frame=1e9), "settings.per_frame: expected an integer >= 1, got 1000000000.0"),
+    ("augment", lambda s: s.update(per_frame=3), "candidates: expected a list of settings.per_frame = 3 candidates, got 2"),
+], ids=["frame-outside", "source-absolute", "seed-text", "candidate-fields", "index", "generator-key",
+        "generator-value", "per-frame-huge", "per-frame-count"])
+def test_a_bad_augment_output_is_one_line_naming_the_file(augmented, capsys, where, edit, message):
+    if where == "augment":
+        path = _edit_settings(augmented, edit)
+    else:
+        path = _edit_record(augmented, where, edit)
+    if "per_frame = 3" in message:
+        path = augmented / "records" / "000000.json"
+    assert main(["view", "--augmented", str(augmented), "--port", "0"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"trioman view: error: {path}: ") and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_deeply_nested_record_is_one_line(augmented, capsys):
+    path = augmented / "records" / "000001.json"
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    assert main(["view", "--augmented", str(augmented), "--port", "0"]) == 1
+    assert capsys.readouterr().err.strip() == f"trioman view: error: {path}: malformed JSON: nested too deeply to read"
+
+
+def test_a_kept_frame_linked_outside_the_folder_is_not_read(augmented, tmp_path):
+    from trioman.runtime.formats import FormatError
+    from trioman.runtime.image_io import write_png
+
+    secret = tmp_path / "secret.png"
+    write_png(secret, np.zeros((4, 4, 3), np.float32))
+    link = augmented / "images" / "000002_c1.png"
+    link.unlink()
+    link.symlink_to(secret)
+    v = open_viewer(None, augmented=augmented, port=0)
+    try:
+        v.augmented.show("000001")
+        with pytest.raises(FormatError, match=r"000002\.json: frame '000002_c1': its file is a link that leads outside"):
+            v.augmented.show("000002")
+    finally:
+        v.stop()
+
+
+def test_an_address_this_machine_lacks_is_one_line(avatar_dir, capsys):
+    from trioman.runtime.viewer.server import check_port
+
+    with pytest.raises(ValueError, match="--host: 192.0.2.1 is not an address of this machine"):
+        check_port("192.0.2.1", 0)  # TEST-NET-1: no machine has it
+    assert main(["view", str(avatar_dir), "--host", "192.0.2.1", "--port", "0"]) == 1
+    assert capsys.readouterr().err.startswith("trioman view: error: --host: 192.0.2.1 is not an address of this machine")
+
+
+def test_every_address_is_said_once(avatar_dir, capsys):
+    from trioman.runtime.viewer.server import is_local_only
+
+    assert is_local_only("127.0.0.1") and is_local_only("localhost") and not is_local_only("0.0.0.0")
+    assert main(["view", str(avatar_dir), "--host", "0.0.0.0", "--port", "0", "--time", "1"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("--host 0.0.0.0 serves the avatar") == 1 and "to everyone who can reach this machine" in out
+    assert main(["view", str(avatar_dir), "--port", "0", "--time", "1"]) == 0
+    assert "serves the avatar" not in capsys.readouterr().out
