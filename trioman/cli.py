@@ -120,6 +120,14 @@ def main(argv: list[str] | None = None) -> int:
         message = describe_os_error(err) if isinstance(err, OSError) else str(err)
         print(f"trioman {cmd.name}: error: {message}", file=sys.stderr)
         return 1
+    except RecursionError:
+        # An input nested deeper than Python's parsers recurse (a JSON file); the readers of
+        # runtime.formats.common.read_json name the file, this is the net under the others.
+        if os.environ.get("TRIOMAN_DEBUG"):
+            raise
+        print(f"trioman {cmd.name}: error: an input is nested too deeply to read (maximum recursion depth exceeded); "
+              f"TRIOMAN_DEBUG=1 shows where", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"trioman {cmd.name}: interrupted", file=sys.stderr)
         return 130
