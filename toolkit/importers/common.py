@@ -154,17 +154,28 @@ def frame_index(path: Path) -> int | None:
     return int(digits[-1]) if digits else None
 
 
-def images_by_index(folder: Path, what: str) -> dict[int, Path]:
-    """Image files of a folder by frame number; a folder without images -> FormatError."""
+def files_by_index(folder: Path, suffixes: tuple[str, ...], what: str) -> dict[int, Path]:
+    """Files of a folder with one of ``suffixes`` by frame number (the last run of digits in the stem), so
+    ``12.json`` and ``00012.json`` both index frame 12. A folder without such files, or two files with the
+    same number, -> FormatError."""
     if not folder.is_dir():
         raise FormatError(f"{folder}: missing folder ({what})")
-    found = {}
+    found: dict[int, Path] = {}
     for p in sorted(folder.iterdir()):
-        if p.suffix.lower() in IMAGE_SUFFIXES + (".tiff", ".tif") and frame_index(p) is not None:
-            found[frame_index(p)] = p
+        idx = frame_index(p)
+        if p.suffix.lower() not in suffixes or idx is None:
+            continue
+        if idx in found:
+            raise FormatError(f"{folder}: {found[idx].name} and {p.name} are both frame {idx} ({what})")
+        found[idx] = p
     if not found:
         raise FormatError(f"{folder}: no {what} found")
     return found
+
+
+def images_by_index(folder: Path, what: str) -> dict[int, Path]:
+    """Image files of a folder by frame number; a folder without images -> FormatError."""
+    return files_by_index(folder, IMAGE_SUFFIXES + (".tiff", ".tif"), what)
 
 
 def read_split_list(path: Path) -> list[int]:

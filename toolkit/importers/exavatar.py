@@ -6,9 +6,12 @@ The layouts, as ExAvatar's loaders read them (docs/real_data.md has the full lis
   (mask = depth < the frame's maximum depth), ``render/cameras.npz`` (``intrinsic`` [3, 3], ``extrinsic``
   [F, 4, 4] world -> camera, in image order), ``SMPLX/mesh-f%05d_smplx.pkl`` (pickled, world frame:
   read only with ``allow_pickle``); the splits are the train/test takes.
-- NeuMan: ``SEQ/images/%05d.png``, ``masks/`` (training masks), ``segmentations/`` (0 = person, the
-  evaluation masks, used for test frames), ``sparse/{cameras,images}.txt`` (COLMAP),
-  ``smplx_optimized/smplx_params/%05d.json`` (camera frame), ``{train,test}_split.txt``.
+- NeuMan: ``SEQ/images/%05d.png``, ``masks/N.png`` (training masks), ``segmentations/%05d.png`` (0 = person,
+  the evaluation masks, used for test frames), ``sparse/{cameras,images}.txt`` (COLMAP),
+  ``smplx_optimized/smplx_params/N.json`` (camera frame; unpadded, as ExAvatar's fitting names them),
+  ``{train,test}_split.txt`` (``val_split.txt`` is not read).
+
+Images, masks, fits and cameras are matched by frame number, never by file name, so padding never matters.
 - Custom: ``ID/frames/N.png``, ``masks/N.png``, ``smplx_optimized/smplx_params_smoothed/N.json`` (camera
   frame), cameras from ``sparse/`` (COLMAP) or ``cam_params/N.json`` (R, t, focal, princpt),
   ``frame_list_{train,test}.txt``.
@@ -30,7 +33,7 @@ import numpy as np
 from trioman.runtime.formats import FormatError, Subject
 from trioman.toolkit.body.smplx_model import NUM_JOINTS, NUM_VERTICES, SMPLXBody
 from trioman.toolkit.importers.common import (
-    FrameRecord, array, images_by_index, read_colmap, read_gray, read_json, read_npz, read_pickle, read_split_list,
+    FrameRecord, array, files_by_index, images_by_index, read_colmap, read_gray, read_json, read_npz, read_pickle, read_split_list,
     smplx_params, write_subject,
 )
 
@@ -149,13 +152,14 @@ def read_neuman(seq_dir: Path) -> list[FrameRecord]:
     segs = images_by_index(seq_dir / "segmentations", "segmentations") if (seq_dir / "segmentations").is_dir() else {}
     focal, princpt, cams = read_colmap(seq_dir / "sparse")
     params_dir = seq_dir / "smplx_optimized" / "smplx_params"
+    fits = files_by_index(params_dir, (".json",), "SMPL-X fits (FRAME.json)")
     records = []
     lists = {"train": seq_dir / "train_split.txt", "test": seq_dir / "test_split.txt"}
     for split, idx, list_path in _split_frames(lists, ("train",)):
         image = _need(images, idx, seq_dir / "images", list_path, "image")
         if idx not in cams:
             raise FormatError(f"{list_path}: frame {idx}: no camera for {image.name} in {seq_dir / 'sparse' / 'images.txt'}")
-        fit = params_dir / f"{image.stem}.json"
+        fit = _need(fits, idx, params_dir, list_path, f"SMPL-X fit ({idx}.json)")
         mask = (_inverted_mask(segs[idx]) if split == "test" and idx in segs
                 else _binary_mask(_need(masks, idx, seq_dir / "masks", list_path, "mask")))
         records.append(FrameRecord(
@@ -169,7 +173,9 @@ def read_custom(video_dir: Path) -> list[FrameRecord]:
     images = images_by_index(video_dir / "frames", "frames")
     masks = images_by_index(video_dir / "masks", "masks")
     params_dir = video_dir / "smplx_optimized" / "smplx_params_smoothed"
+    fits = files_by_index(params_dir, (".json",), "SMPL-X fits (FRAME.json)")
     colmap = read_colmap(video_dir / "sparse") if (video_dir / "sparse" / "cameras.txt").is_file() else None
+    cam_files = files_by_index(video_dir / "cam_params", (".json",), "camera files (FRAME.json)") if colmap is None else {}
     records = []
     lists = {"train": video_dir / "frame_list_train.txt", "test": video_dir / "frame_list_test.txt"}
     for split, idx, list_path in _split_frames(lists, ("train",)):
@@ -180,7 +186,7 @@ def read_custom(video_dir: Path) -> list[FrameRecord]:
                 raise FormatError(f"{list_path}: frame {idx}: no camera in {video_dir / 'sparse' / 'images.txt'}")
             R, t = cams[idx]
         else:
-            cam_path = video_dir / "cam_params" / f"{image.stem}.json"
+            cam_path = _need(cam_files, idx, video_dir / "cam_params", list_path, f"camera ({idx}.json)")
             cam = read_json(cam_path)
             if not isinstance(cam, dict):
                 raise FormatError(f"{cam_path}: expected an object with R, t, focal, princpt")
@@ -189,7 +195,7 @@ def read_custom(video_dir: Path) -> list[FrameRecord]:
                     raise FormatError(f"{cam_path}: {key}: missing field")
             R, t = array(cam_path, "R", cam["R"], (3, 3)), array(cam_path, "t", cam["t"], (3,))
             focal, princpt = array(cam_path, "focal", cam["focal"], (2,)), array(cam_path, "princpt", cam["princpt"], (2,))
-        fit = params_dir / f"{image.stem}.json"
+        fit = _need(fits, idx, params_dir, list_path, f"SMPL-X fit ({idx}.json)")
         records.append(FrameRecord(
             name=image.stem, split=split, sequence=video_dir.name, image=image,
             mask=_binary_mask(_need(masks, idx, video_dir / "masks", list_path, "mask")),

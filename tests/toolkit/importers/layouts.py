@@ -1,8 +1,14 @@
-"""Tiny captures written in each real layout (X-Humans, NeuMan with COLMAP text, Custom, SMPLer-X fits).
+"""Tiny captures laid out as the upstream code writes them, for the importer tests.
 
-64 x 64 frames: a coloured disc (the person) on a grey background. Every frame's SMPL-X parameters are
-random, with the pelvis placed 3 m in front of the camera on its optical axis, so the pelvis projects to
-the principal point; ``Scene`` keeps what was written so tests can pose smplx on it.
+Upstream revisions read: ExAvatar_RELEASE d452687 (its ``fitting/`` and ``avatar/data/*``), ml-neuman 0149d25
+(the NeuMan preprocessing and readers). Each writer names, in a comment, the upstream file and line whose
+output it reproduces; nothing here is upstream code.
+
+64 x 64 frames: a coloured disc (the person) on a grey background. The person stands in the capture's world
+along a known up direction (``Scene.up``): a random direction for COLMAP worlds (which have no up), about
+-y for a camera frame (virtual cameras, SMPLer-X), +y for X-Humans. Cameras look at the pelvis from 3 m
+with their up near the person's, so the pelvis projects to the principal point. ``Scene`` keeps what was
+written, so tests can pose smplx on it.
 """
 
 from __future__ import annotations
@@ -15,44 +21,88 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_quat
+from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_quat
 
 SIZE = 64
 FOCAL = (70.0, 72.0)
 PRINCPT = (31.0, 33.0)
 NUM_BETAS = 100
+DISTANCE = 3.0  # camera -> pelvis, metres
+E_Y = np.array([0.0, 1.0, 0.0])
+NUM_FLAME_VERTICES = 5023  # FLAME's vertices, which ExAvatar's face_offset covers inside SMPL-X's 10,475
 
 
 @dataclass
 class Scene:
-    """What a layout writer wrote: per frame the SMPL-X parameters (SMPL-X's names) and world -> camera."""
+    """What a layout writer wrote: the identity, the capture world's up, and per frame the SMPL-X parameters
+    (ExAvatar's names), the camera (world -> camera R, t; focal, princpt) and the frame's name and split."""
 
     betas: np.ndarray
-    frames: list[dict] = field(default_factory=list)  # {"name", "split", "params", "R", "t", "in_camera"}
+    up: np.ndarray = field(default_factory=lambda: E_Y.copy())
+    gender: str = "male"
+    face_offset: np.ndarray | None = None  # [10475, 3] SMPL-X frame
+    joint_offset: np.ndarray | None = None  # [55, 3]
+    frames: list[dict] = field(default_factory=list)  # {"name", "split", "params", "R", "t", "in_camera", "focal", "princpt"}
 
 
-def rest_pelvis(model_dir: Path, betas: np.ndarray) -> np.ndarray:
-    """The shaped rest pelvis in SMPL-X's frame, from the model file directly."""
-    with np.load(model_dir / "SMPLX_MALE.npz", allow_pickle=False) as f:
-        v = f["v_template"] + f["shapedirs"][:, :, : len(betas)] @ betas
+def rest_pelvis(model_dir: Path, betas: np.ndarray, face_offset: np.ndarray | None = None,
+                gender: str = "male") -> np.ndarray:
+    """The shaped rest pelvis in SMPL-X's frame, from the model file directly (face offset on the template)."""
+    with np.load(model_dir / f"SMPLX_{gender.upper()}.npz", allow_pickle=False) as f:
+        v = f["v_template"] + (0 if face_offset is None else face_offset) + f["shapedirs"][:, :, : len(betas)] @ betas
         return f["J_regressor"][0] @ v
 
 
-def _params(rng: np.random.Generator, pelvis_cam: np.ndarray, R: np.ndarray, t: np.ndarray, j0: np.ndarray,
-            in_camera: bool) -> dict:
-    """Random SMPL-X parameters whose pelvis lands at ``pelvis_cam`` in the camera frame."""
-    target = pelvis_cam if in_camera else R.T @ (pelvis_cam - t)  # camera or world frame
-    root = rng.normal(scale=0.3, size=3) + (0.0, np.pi, 0.0)  # facing the camera, roughly
-    return {"root_pose": root.tolist(), "body_pose": rng.normal(scale=0.3, size=(21, 3)).tolist(),
+# --------------------------------------------------------------------------------------------------
+# geometry of a standing person and cameras around them
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector a onto unit vector b."""
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(a @ b)
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        perp = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return axis_angle_to_matrix(np.pi * perp / np.linalg.norm(perp))
+    return axis_angle_to_matrix(axis / s * np.arctan2(s, c))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _standing_root(rng: np.random.Generator, up: np.ndarray) -> np.ndarray:
+    """World root rotation of a person standing along ``up``: SMPL-X's +y onto up, any heading, a slight lean."""
+    heading = axis_angle_to_matrix(np.array([0.0, rng.uniform(-np.pi, np.pi), 0.0]))
+    lean = axis_angle_to_matrix(rng.normal(scale=0.05, size=3))
+    return _rotation_between(E_Y, up) @ lean @ heading
+
+
+def _look_at(rng: np.random.Generator, pelvis: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World -> camera (R, t) of a camera DISTANCE m from the pelvis, looking at it slightly from above with a
+    few degrees of roll: the pelvis lands at (0, 0, DISTANCE) in the camera."""
+    h = rng.normal(size=3)
+    z = _unit(_unit(h - (h @ up) * up) - rng.uniform(0.0, 0.3) * up)  # forward
+    cam_up = axis_angle_to_matrix(z * rng.normal(scale=0.05)) @ up  # rolled
+    y = -_unit(cam_up - (cam_up @ z) * z)  # down
+    R = np.stack([np.cross(y, z), y, z])
+    return R, -R @ (pelvis - DISTANCE * z)
+
+
+def _fit(rng: np.random.Generator, root_world: np.ndarray, pelvis_world: np.ndarray, R: np.ndarray, t: np.ndarray,
+         j0: np.ndarray, in_camera: bool) -> dict:
+    """Random SMPL-X parameters with ExAvatar's keys and shapes (ExAvatar_RELEASE fitting/main/fit.py lines
+    169-177: root_pose [3], body_pose [21, 3], jaw/leye/reye_pose [3], l/rhand_pose [15, 3], expr [50], trans [3],
+    trans being smplx's transl), in the camera frame (``in_camera``) or the world."""
+    root = R @ root_world if in_camera else root_world
+    pelvis = R @ pelvis_world + t if in_camera else pelvis_world
+    return {"root_pose": matrix_to_axis_angle(root).tolist(), "body_pose": rng.normal(scale=0.3, size=(21, 3)).tolist(),
             "jaw_pose": rng.normal(scale=0.1, size=3).tolist(), "leye_pose": rng.normal(scale=0.1, size=3).tolist(),
             "reye_pose": rng.normal(scale=0.1, size=3).tolist(), "lhand_pose": rng.normal(scale=0.3, size=(15, 3)).tolist(),
             "rhand_pose": rng.normal(scale=0.3, size=(15, 3)).tolist(), "expr": rng.normal(size=50).tolist(),
-            "trans": (target - j0).tolist()}
-
-
-def _camera(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    R = axis_angle_to_matrix(rng.normal(scale=0.4, size=3))
-    return R, rng.normal(size=3)
+            "trans": (pelvis - j0).tolist()}
 
 
 def _image_and_mask(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -73,32 +123,164 @@ def _json(path: Path, obj) -> None:
     path.write_text(json.dumps(obj))
 
 
-def _identity(folder: Path, rng: np.random.Generator) -> Scene:
+def _exavatar_identity(folder: Path, rng: np.random.Generator, model_dir: Path, offsets: bool = True) -> Scene:
+    """``smplx_optimized/`` identity files as ExAvatar_RELEASE fitting/main/fit.py writes them (lines 178-193):
+    shape_param.json [100]; face_offset.json [10475, 3], zero outside FLAME's face vertices (fitting/common/utils/
+    smpl_x.py get_face_offset, line 77); joint_offset.json [55, 3], zero at the pelvis and hips (get_joint_offset,
+    line 83); locator_offset.json [55, 3], non-zero only at the hips (get_locator_offset, line 91)."""
     betas = rng.normal(scale=0.5, size=NUM_BETAS)
-    _json(folder / "smplx_optimized" / "shape_param.json", betas.tolist())
-    return Scene(betas=betas)
+    opt = folder / "smplx_optimized"
+    _json(opt / "shape_param.json", betas.tolist())
+    scene = Scene(betas=betas)
+    if offsets:
+        face = np.zeros((10475, 3))
+        face[rng.choice(10475, NUM_FLAME_VERTICES, replace=False)] = rng.normal(scale=0.005, size=(NUM_FLAME_VERTICES, 3))
+        joint = rng.normal(scale=0.01, size=(55, 3))
+        joint[[0, 1, 2]] = 0.0  # pelvis, left hip, right hip
+        locator = np.zeros((55, 3))
+        locator[[1, 2]] = rng.normal(scale=0.01, size=(2, 3))
+        _json(opt / "face_offset.json", face.tolist())
+        _json(opt / "joint_offset.json", joint.tolist())
+        _json(opt / "locator_offset.json", locator.tolist())
+        scene.face_offset, scene.joint_offset = face, joint
+    return scene
 
 
 def _pelvis(model_dir: Path, scene: Scene) -> np.ndarray:
-    return rest_pelvis(model_dir, scene.betas)
+    return rest_pelvis(model_dir, scene.betas, scene.face_offset, scene.gender)
+
+
+def _colmap(sparse: Path, cams: dict[str, tuple[np.ndarray, np.ndarray]], rng: np.random.Generator) -> None:
+    """COLMAP's text model (cameras.txt, images.txt, points3D.txt) with the headers ml-neuman's reader asserts
+    (ml-neuman data_io/colmap_helper.py, read_cameras line 90, read_images_meta line 120): one shared PINHOLE
+    camera (8 fields, as ExAvatar's loaders split it: avatar/data/NeuMan/NeuMan.py line 42), images in
+    registration order (not by name), quaternions of either sign (q and -q are the same rotation; COLMAP does
+    not make qw >= 0), a line of 2D points after each image line; points3D.txt with a few points (ExAvatar's
+    NeuMan loader reads it: avatar/data/NeuMan/NeuMan.py line 93)."""
+    sparse.mkdir(parents=True, exist_ok=True)
+    (sparse / "cameras.txt").write_text(
+        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+        f"# Number of cameras: 1\n1 PINHOLE {SIZE} {SIZE} {FOCAL[0]} {FOCAL[1]} {PRINCPT[0]} {PRINCPT[1]}\n")
+    order = rng.permutation(len(cams))
+    items = list(cams.items())
+    lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+             "#   POINTS2D[] as (X, Y, POINT3D_ID)", f"# Number of images: {len(cams)}, mean observations per image: 3.0"]
+    for image_id, k in enumerate(order, 1):
+        name, (R, t) = items[k]
+        q = matrix_to_quat(R) * (-1.0 if image_id % 2 else 1.0)
+        lines.append(f"{image_id} {' '.join(repr(float(v)) for v in q)} {' '.join(repr(float(v)) for v in t)} 1 {name}")
+        lines.append("12.5 20.25 1 30.0 8.5 -1 40.75 33.0 2")
+    (sparse / "images.txt").write_text("\n".join(lines) + "\n")
+    (sparse / "points3D.txt").write_text(
+        "# 3D point list with one line of data per point:\n"
+        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+        "# Number of points: 2, mean track length: 1.0\n1 0.5 0.1 4.0 120 130 140 0.5 1 0\n"
+        "2 -0.3 0.2 5.0 90 80 70 0.4 2 2\n")
+
+
+def neuman_splits(num_frames: int) -> dict[str, list[int]]:
+    """ml-neuman's split of a capture (data_io/neuman_helper.py create_split_files, line 149): every k-th capture
+    in name order is held out from k // 2 (k = N / (N // 5)), the first half of those test, the rest val."""
+    step = int(num_frames / (num_frames // 5))
+    held = list(range(step // 2, num_frames, step))
+    return {"train": [i for i in range(num_frames) if i not in held], "test": held[: len(held) // 2],
+            "val": held[len(held) // 2:]}
+
+
+# --------------------------------------------------------------------------------------------------
+# the layouts
+
+
+def write_neuman(root: Path, model_dir: Path, seed: int = 1, num_frames: int = 10) -> Scene:
+    """ROOT/bike as ExAvatar's fitting leaves a NeuMan capture: 10 frames, ml-neuman's splits (train 8, test
+    frame 2, val frame 7), COLMAP text in a world with a random up."""
+    rng = np.random.default_rng(seed)
+    seq = root / "bike"
+    scene = _exavatar_identity(seq, rng, model_dir)
+    scene.up = _unit(rng.normal(size=3))
+    j0 = _pelvis(model_dir, scene)
+    splits = neuman_splits(num_frames)
+    split_of = {i: s for s, frames in splits.items() for i in frames}
+    start = rng.normal(size=3) * 2
+    cams = {}
+    for idx in range(num_frames):
+        pelvis = start + 0.1 * idx * _unit(np.cross(scene.up, [1.0, 0.0, 0.0]))  # walking
+        R, t = _look_at(rng, pelvis, scene.up)
+        p = _fit(rng, _standing_root(rng, scene.up), pelvis, R, t, j0, in_camera=True)
+        img, mask = _image_and_mask(rng)
+        _png(seq / "images" / f"{idx:05d}.png", img)  # ml-neuman preprocess/save_video_frames.py line 50: zfill(5)
+        _png(seq / "masks" / f"{idx}.png", mask)  # ExAvatar_RELEASE fitting/tools/code_to_copy/run_sam.py line 75
+        # NeuMan's Detectron2 masks, 255 = background: ml-neuman cameras/captures.py (mask), and ExAvatar_RELEASE
+        # avatar/tools/eval_neuman.py line 48 ('%05d.png', 1 - mask / 255)
+        _png(seq / "segmentations" / f"{idx:05d}.png", 255 - mask)
+        # ExAvatar_RELEASE fitting/main/fit.py line 168: str(frame_idx) + '.json', unpadded
+        _json(seq / "smplx_optimized" / "smplx_params" / f"{idx}.json", p)
+        cams[f"{idx:05d}.png"] = (R, t)
+        if split_of[idx] != "val":
+            scene.frames.append({"name": f"{idx:05d}", "split": split_of[idx], "params": p, "R": R, "t": t,
+                                 "in_camera": True, "focal": FOCAL, "princpt": PRINCPT})
+    _colmap(seq / "sparse", cams, rng)
+    for split, frames in splits.items():  # ml-neuman neuman_helper.py create_split_files: "%s\n" of the image name
+        (seq / f"{split}_split.txt").write_text("".join(f"{i:05d}.png\n" for i in frames))
+    return scene
+
+
+def write_custom(root: Path, model_dir: Path, seed: int = 2, colmap: bool = False) -> Scene:
+    """ROOT/myvideo as ExAvatar's tools leave a custom video: frames 0-3 (3 train, 1 test). Virtual cameras in
+    cam_params/ (R = I, t = 0: the world is the camera frame, y down) or, with ``colmap``, COLMAP text naming the
+    images image{N}.jpg in a world with a random up."""
+    rng = np.random.default_rng(seed)
+    vid = root / "myvideo"
+    scene = _exavatar_identity(vid, rng, model_dir)
+    tilt = axis_angle_to_matrix(np.array([rng.uniform(0.1, 0.3), 0.0, 0.0]))  # the camera looks slightly down
+    scene.up = _unit(rng.normal(size=3)) if colmap else tilt @ -E_Y
+    j0 = _pelvis(model_dir, scene)
+    # virtual cameras: ExAvatar_RELEASE fitting/tools/make_virtual_cam_params.py lines 26-27 (focal 2000, image centre)
+    focal, princpt = (FOCAL, PRINCPT) if colmap else ((2000.0, 2000.0), (SIZE / 2, SIZE / 2))
+    cams = {}
+    for idx in range(4):
+        pelvis = np.array([0.0, 0.0, DISTANCE]) + (0.05 * idx * np.cross(scene.up, [0.0, 0.0, 1.0]) if colmap else 0.0)
+        R, t = _look_at(rng, pelvis, scene.up) if colmap else (np.eye(3), np.zeros(3))
+        p = _fit(rng, _standing_root(rng, scene.up), pelvis, R, t, j0, in_camera=True)
+        img, mask = _image_and_mask(rng)
+        _png(vid / "frames" / f"{idx}.png", img)  # ExAvatar_RELEASE fitting/tools/extract_frames.py line 24
+        _png(vid / "masks" / f"{idx}.png", mask)  # fitting/tools/code_to_copy/run_sam.py line 75
+        # fitting/tools/smooth_smplx_params.py line 167: smplx_params_smoothed/str(frame_idx) + '.json'
+        _json(vid / "smplx_optimized" / "smplx_params_smoothed" / f"{idx}.json", p)
+        if colmap:
+            cams[f"image{idx}.jpg"] = (R, t)  # fitting/tools/code_to_copy/run_colmap.py line 32
+        else:
+            _json(vid / "cam_params" / f"{idx}.json", {"R": R.tolist(), "t": t.tolist(), "focal": list(focal),
+                                                       "princpt": list(princpt)})
+        scene.frames.append({"name": str(idx), "split": "train" if idx < 3 else "test", "params": p, "R": R, "t": t,
+                             "in_camera": True, "focal": focal, "princpt": princpt})
+    if colmap:
+        _colmap(vid / "sparse", cams, rng)
+    # fitting/README.md: frame_list_{all,train,test}.txt, 'a frame index and a new line'
+    (vid / "frame_list_train.txt").write_text("0\n1\n2\n")
+    (vid / "frame_list_test.txt").write_text("3\n")
+    (vid / "frame_list_all.txt").write_text("0\n1\n2\n3\n")
+    return scene
 
 
 def write_xhumans(root: Path, model_dir: Path, seed: int = 0) -> Scene:
-    """ROOT/00028/{train/Take1, train/Take2, test/Take9} with 2 frames each; fits as X-Humans' pickles."""
+    """ROOT/00028/{train/Take1, train/Take2, test/Take9} with 2 frames each; fits as X-Humans' pickles, in a
+    y-up world (read as ExAvatar_RELEASE fitting/data/XHumans/XHumans.py lines 44-105 read them)."""
     rng = np.random.default_rng(seed)
     subj = root / "00028"
-    scene = _identity(subj, rng)
+    scene = _exavatar_identity(subj, rng, model_dir, offsets=False)
     j0 = _pelvis(model_dir, scene)
     intr = np.array([[FOCAL[0], 0, PRINCPT[0]], [0, FOCAL[1], PRINCPT[1]], [0, 0, 1]])
     for split, take in (("train", "Take1"), ("train", "Take2"), ("test", "Take9")):
         d = subj / split / take
         extr = []
         for idx in (1, 2):
-            R, t = _camera(rng)
+            pelvis = np.array([0.0, 0.9, 0.0]) + rng.normal(scale=0.2, size=3)
+            R, t = _look_at(rng, pelvis, scene.up)
             E = np.eye(4)
             E[:3, :3], E[:3, 3] = R, t
             extr.append(E)
-            p = _params(rng, np.array([0.0, 0.0, 3.0]), R, t, j0, in_camera=False)
+            p = _fit(rng, _standing_root(rng, scene.up), pelvis, R, t, j0, in_camera=False)
             img, mask = _image_and_mask(rng)
             _png(d / "render" / "image" / f"color_{idx:06d}.png", img)
             depth = np.where(mask > 0, 2.5, 8.0).astype(np.float32)
@@ -113,85 +295,22 @@ def write_xhumans(root: Path, model_dir: Path, seed: int = 0) -> Scene:
             with open(d / "SMPLX" / f"mesh-f{idx:05d}_smplx.pkl", "wb") as f:
                 pickle.dump(fit, f)
             scene.frames.append({"name": f"{take}_{idx:06d}", "split": split, "params": p, "R": R, "t": t,
-                                 "in_camera": False})
+                                 "in_camera": False, "focal": FOCAL, "princpt": PRINCPT})
         np.savez(d / "render" / "cameras.npz", intrinsic=intr, extrinsic=np.stack(extr))
     return scene
 
 
-def _colmap(sparse: Path, cams: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
-    sparse.mkdir(parents=True, exist_ok=True)
-    (sparse / "cameras.txt").write_text(
-        "# Camera list with one line of data per camera:\n"
-        f"1 PINHOLE {SIZE} {SIZE} {FOCAL[0]} {FOCAL[1]} {PRINCPT[0]} {PRINCPT[1]}\n")
-    lines = ["# Image list with two lines of data per image:"]
-    for i, (name, (R, t)) in enumerate(cams.items(), 1):
-        q = matrix_to_quat(R)
-        lines.append(f"{i} {' '.join(repr(float(v)) for v in q)} {' '.join(repr(float(v)) for v in t)} 1 {name}")
-        lines.append("")  # no 2D points
-    (sparse / "images.txt").write_text("\n".join(lines) + "\n")
-    (sparse / "points3D.txt").write_text("# empty\n")
-
-
-def write_neuman(root: Path, model_dir: Path, seed: int = 1) -> Scene:
-    """ROOT/bike: 7 frames, train 0-3, test 4-5, frame 6 in neither (NeuMan's val split); COLMAP text."""
-    rng = np.random.default_rng(seed)
-    seq = root / "bike"
-    scene = _identity(seq, rng)
-    j0 = _pelvis(model_dir, scene)
-    cams = {}
-    for idx in range(7):
-        name = f"{idx:05d}"
-        R, t = _camera(rng)
-        cams[f"{name}.png"] = (R, t)
-        p = _params(rng, np.array([0.0, 0.0, 3.0]), R, t, j0, in_camera=True)
-        img, mask = _image_and_mask(rng)
-        _png(seq / "images" / f"{name}.png", img)
-        _png(seq / "masks" / f"{name}.png", mask)
-        _png(seq / "segmentations" / f"{name}.png", 255 - mask)
-        _json(seq / "smplx_optimized" / "smplx_params" / f"{name}.json", p)
-        if idx < 6:
-            scene.frames.append({"name": name, "split": "train" if idx < 4 else "test", "params": p, "R": R, "t": t,
-                                 "in_camera": True})
-    _colmap(seq / "sparse", cams)
-    (seq / "train_split.txt").write_text("".join(f"{i:05d}.png\n" for i in range(4)))
-    (seq / "test_split.txt").write_text("00004.png\n00005.png\n")
-    (seq / "val_split.txt").write_text("00006.png\n")
-    return scene
-
-
-def write_custom(root: Path, model_dir: Path, seed: int = 2) -> Scene:
-    """ROOT/myvideo: 4 frames (3 train, 1 test), virtual cameras in cam_params/ (R = I, t = 0)."""
-    rng = np.random.default_rng(seed)
-    vid = root / "myvideo"
-    scene = _identity(vid, rng)
-    j0 = _pelvis(model_dir, scene)
-    for idx in range(4):
-        R, t = np.eye(3), np.zeros(3)
-        p = _params(rng, np.array([0.0, 0.0, 3.0]), R, t, j0, in_camera=True)
-        img, mask = _image_and_mask(rng)
-        _png(vid / "frames" / f"{idx}.png", img)
-        _png(vid / "masks" / f"{idx}.png", mask)
-        _json(vid / "smplx_optimized" / "smplx_params_smoothed" / f"{idx}.json", p)
-        _json(vid / "cam_params" / f"{idx}.json", {"R": R.tolist(), "t": t.tolist(), "focal": list(FOCAL),
-                                                   "princpt": list(PRINCPT)})
-        scene.frames.append({"name": str(idx), "split": "train" if idx < 3 else "test", "params": p, "R": R, "t": t,
-                             "in_camera": True})
-    (vid / "frame_list_train.txt").write_text("0\n1\n2\n")
-    (vid / "frame_list_test.txt").write_text("3\n")
-    (vid / "frame_list_all.txt").write_text("0\n1\n2\n3\n")
-    return scene
-
-
 def write_smplerx(root: Path, model_dir: Path, seed: int = 3) -> Scene:
-    """ROOT/frames/%05d.png, ROOT/masks/, ROOT/fits/{smplx,meta}/%05d_0.npz|json: 5 frames (the 5th is test)."""
+    """ROOT/frames/%05d.png, ROOT/masks/, ROOT/fits/{smplx,meta}/%05d_0.npz|json: 5 frames (the 5th is test),
+    in the frame of a camera at the origin, the person standing along about -y."""
     rng = np.random.default_rng(seed)
     betas = rng.normal(scale=0.5, size=10)
-    scene = Scene(betas=betas)
-    with np.load(model_dir / "SMPLX_NEUTRAL.npz", allow_pickle=False) as f:
-        j0 = f["J_regressor"][0] @ (f["v_template"] + f["shapedirs"][:, :, :10] @ betas)
+    scene = Scene(betas=betas, gender="neutral", up=axis_angle_to_matrix(np.array([0.15, 0.0, 0.0])) @ -E_Y)
+    j0 = _pelvis(model_dir, scene)
     for idx in range(5):
         name = f"{idx:05d}"
-        p = _params(rng, np.array([0.0, 0.0, 3.0]), np.eye(3), np.zeros(3), j0, in_camera=True)
+        pelvis = np.array([0.0, 0.0, DISTANCE])
+        p = _fit(rng, _standing_root(rng, scene.up), pelvis, np.eye(3), np.zeros(3), j0, in_camera=True)
         img, mask = _image_and_mask(rng)
         _png(root / "frames" / f"{name}.png", img)
         _png(root / "masks" / f"{name}.png", mask)
@@ -203,5 +322,5 @@ def write_smplerx(root: Path, model_dir: Path, seed: int = 3) -> Scene:
         _json(root / "fits" / "meta" / f"{name}_0.json", {"focal": list(FOCAL), "princpt": list(PRINCPT)})
         p = {**p, "leye_pose": [0.0] * 3, "reye_pose": [0.0] * 3}
         scene.frames.append({"name": name, "split": "test" if idx == 4 else "train", "params": p, "R": np.eye(3),
-                             "t": np.zeros(3), "in_camera": True})
+                             "t": np.zeros(3), "in_camera": True, "focal": FOCAL, "princpt": PRINCPT})
     return scene

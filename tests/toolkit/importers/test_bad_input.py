@@ -44,8 +44,8 @@ def edit_json(path, key, value):
 
 def test_missing_file(tmp_path, smplx_model_dir):
     msg = exavatar(tmp_path, smplx_model_dir, "neuman",
-                   lambda f: (f / "smplx_optimized" / "smplx_params" / "00002.json").unlink())
-    assert msg.endswith("smplx_params/00002.json: missing file")
+                   lambda f: (f / "smplx_optimized" / "smplx_params" / "2.json").unlink())
+    assert "test_split.txt: frame 2: no SMPL-X fit (2.json) in " in msg and msg.endswith("smplx_params")
 
 
 def test_wrong_shape(tmp_path, smplx_model_dir):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import functools
+import contextlib
 
 import numpy as np
 import pytest
@@ -18,30 +18,75 @@ WRITERS = {"xhumans": layouts.write_xhumans, "neuman": layouts.write_neuman, "cu
 SUBJECT_ID = {"xhumans": "00028", "neuman": "bike", "custom": "myvideo"}
 
 
-@functools.lru_cache(maxsize=2)
-def smplx_layer(model_dir, gender: str, num_betas: int):
-    return smplx.SMPLX(str(model_dir), gender=gender, num_betas=num_betas, use_pca=False, flat_hand_mean=False,
-                       dtype=torch.float64)
+_LAYERS: dict = {}
+
+
+def smplx_layer(model_dir, gender: str, num_betas: int, face_offset):
+    """smplx's SMPL-X layer; ExAvatar's face_offset is added to the template (its smplx fork, body_models.py
+    line 1250: v_template + face_offset)."""
+    key = (str(model_dir), gender, num_betas, None if face_offset is None else hash(face_offset.tobytes()))
+    if key not in _LAYERS:
+        with np.load(model_dir / f"SMPLX_{gender.upper()}.npz", allow_pickle=False) as f:
+            template = f["v_template"] + (0 if face_offset is None else face_offset)
+        _LAYERS.clear()
+        _LAYERS[key] = smplx.SMPLX(str(model_dir), gender=gender, num_betas=num_betas, use_pca=False,
+                                   flat_hand_mean=False, v_template=template, dtype=torch.float64)
+    return _LAYERS[key]
+
+
+@contextlib.contextmanager
+def joint_offset_added(joint_offset):
+    """smplx's forward with ExAvatar's joint offset: added to the regressed joints (ExAvatar_RELEASE's smplx fork,
+    fitting/common/utils/smplx/smplx/lbs.py lines 219-221)."""
+    original = smplx.lbs.vertices2joints
+
+    def with_offset(J_regressor, vertices):
+        J = original(J_regressor, vertices)
+        return J if joint_offset is None else J + torch.as_tensor(joint_offset, dtype=J.dtype)
+
+    smplx.lbs.vertices2joints = with_offset
+    try:
+        yield
+    finally:
+        smplx.lbs.vertices2joints = original
 
 
 @torch.no_grad()
-def reference_pixels(model_dir, scene, frame, gender="male", num_betas=layouts.NUM_BETAS) -> np.ndarray:
-    """smplx's own joints for the written parameters, projected with the written camera. -> [55, 2]."""
-    layer = smplx_layer(model_dir, gender, num_betas)
+def reference_vertices(model_dir, scene, frame, num_betas=layouts.NUM_BETAS) -> np.ndarray:
+    """smplx's vertices [10475, 3] for the written parameters and identity, in the written camera's frame."""
+    layer = smplx_layer(model_dir, scene.gender, num_betas, scene.face_offset)
     p = {k: torch.tensor(np.asarray(v, dtype=np.float64)).reshape(1, -1) for k, v in frame["params"].items() if k != "expr"}
-    out = layer(betas=torch.tensor(scene.betas)[None], global_orient=p["root_pose"], body_pose=p["body_pose"],
-                jaw_pose=p["jaw_pose"], leye_pose=p["leye_pose"], reye_pose=p["reye_pose"],
-                left_hand_pose=p["lhand_pose"], right_hand_pose=p["rhand_pose"], transl=p["trans"])
-    X = out.joints[0, :55].numpy()
-    cam = X if frame["in_camera"] else X @ frame["R"].T + frame["t"]
-    return np.asarray(layouts.FOCAL) * cam[:, :2] / cam[:, 2:] + np.asarray(layouts.PRINCPT)
+    with joint_offset_added(scene.joint_offset):
+        out = layer(betas=torch.tensor(scene.betas)[None], global_orient=p["root_pose"], body_pose=p["body_pose"],
+                    jaw_pose=p["jaw_pose"], leye_pose=p["leye_pose"], reye_pose=p["reye_pose"],
+                    left_hand_pose=p["lhand_pose"], right_hand_pose=p["rhand_pose"], transl=p["trans"])
+    X = out.vertices[0].numpy()
+    return X if frame["in_camera"] else X @ frame["R"].T + frame["t"]
 
 
-def subject_pixels(subject, i: int) -> np.ndarray:
-    G = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])
-    X = G[:, :3, 3] @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
-    uv = X @ subject.K[i].T.astype(np.float64)
-    return uv[:, :2] / uv[:, 2:]
+def subject_vertices(subject, i: int) -> np.ndarray:
+    """The imported frame's posed vertices through its imported camera -> [10475, 3] in the camera frame."""
+    X = subject.body.pose(subject.poses[i].astype(np.float64), subject.trans[i].astype(np.float64))
+    return X @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
+
+
+def pixels(X: np.ndarray, focal, princpt) -> np.ndarray:
+    return np.asarray(focal) * X[:, :2] / X[:, 2:] + np.asarray(princpt)
+
+
+def check_against_smplx(subject, scene, model_dir, num_betas=layouts.NUM_BETAS) -> None:
+    """Every vertex of every frame within 1e-4 m of smplx's in the camera frame; K as written; pelvis on axis."""
+    assert [f["name"] for f in scene.frames] == subject.frame_names.tolist()
+    assert [f["split"] for f in scene.frames] == subject.split.tolist()
+    for i, frame in enumerate(scene.frames):
+        got, want = subject_vertices(subject, i), reference_vertices(model_dir, scene, frame, num_betas)
+        np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)
+        K = subject.K[i]
+        np.testing.assert_allclose([K[0, 0], K[1, 1]], frame["focal"], rtol=1e-6)
+        np.testing.assert_allclose([K[0, 2], K[1, 2]], frame["princpt"], rtol=1e-6)
+        G = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])
+        pelvis = G[:1, :3, 3] @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
+        np.testing.assert_allclose(pixels(pelvis, frame["focal"], frame["princpt"])[0], frame["princpt"], atol=1e-3)
 
 
 def run_import(tmp_path, dataset, model_dir, *extra):
@@ -54,22 +99,50 @@ def run_import(tmp_path, dataset, model_dir, *extra):
 
 
 @pytest.mark.parametrize("dataset", ["xhumans", "neuman", "custom"])
-def test_imported_joints_project_to_the_known_pixels(tmp_path, smplx_model_dir, dataset, capsys):
+def test_imported_vertices_match_smplx_in_the_camera(tmp_path, smplx_model_dir, dataset, capsys):
     extra = ("--allow-pickle",) if dataset == "xhumans" else ()
     scene, out, rc = run_import(tmp_path, dataset, smplx_model_dir, *extra)
     assert rc == 0, capsys.readouterr().err
     assert "expression coefficients are ignored" in capsys.readouterr().out
     subject = load_subject(out)
     assert subject.body_model == "smplx" and subject.num_joints == 55 and subject.body.pose_correctives is not None
-    assert [f["name"] for f in scene.frames] == subject.frame_names.tolist()
-    assert [f["split"] for f in scene.frames] == subject.split.tolist()
-    for i, frame in enumerate(scene.frames):
-        got = subject_pixels(subject, i)
-        np.testing.assert_allclose(got[0], layouts.PRINCPT, atol=1e-3)  # the pelvis: on the optical axis
-        np.testing.assert_allclose(got, reference_pixels(smplx_model_dir, scene, frame), atol=1e-2)
+    check_against_smplx(subject, scene, smplx_model_dir)
     # Images are premultiplied by the mask: black outside the disc, the person inside.
     img, mask = subject.image(0), subject.mask(0)
     assert mask[33, 31] == 1.0 and mask[0, 0] == 0.0 and np.all(img[0, 0] == 0) and img[33, 31].max() > 0
+
+
+def test_custom_with_colmap_cameras(tmp_path, smplx_model_dir):
+    """Custom with COLMAP: sparse/ names the images image{N}.jpg (ExAvatar's run_colmap.py), no cam_params/."""
+    scene = layouts.write_custom(tmp_path / "data", smplx_model_dir, colmap=True)
+    assert not (tmp_path / "data" / "myvideo" / "cam_params").exists()
+    out = tmp_path / "subject"
+    assert main(["import", "exavatar", str(tmp_path / "data" / "myvideo"), "--dataset", "custom", "--out", str(out),
+                 "--body-model-dir", str(smplx_model_dir)]) == 0
+    check_against_smplx(load_subject(out), scene, smplx_model_dir)
+
+
+def test_neuman_as_upstream_writes_it(tmp_path, smplx_model_dir):
+    """Unpadded fits and masks (N.json, N.png) beside padded images (%05d.png), ml-neuman's split files with a
+    val split that is left out; padding never matters, two files of one frame are refused."""
+    root = tmp_path / "data"
+    layouts.write_neuman(root, smplx_model_dir)
+    seq = root / "bike"
+    assert (seq / "smplx_optimized" / "smplx_params" / "2.json").is_file() and (seq / "images" / "00002.png").is_file()
+    assert (seq / "test_split.txt").read_text() == "00002.png\n" and (seq / "val_split.txt").read_text() == "00007.png\n"
+    out = tmp_path / "subject"
+    assert main(["import", "exavatar", str(seq), "--dataset", "neuman", "--out", str(out),
+                 "--body-model-dir", str(smplx_model_dir)]) == 0
+    subject = load_subject(out)
+    assert "00007" not in subject.frame_names.tolist() and subject.frame_names[subject.indices("test")].tolist() == ["00002"]
+    # padded fits (another writer's naming) are read the same
+    params = seq / "smplx_optimized" / "smplx_params"
+    for p in list(params.iterdir()):
+        p.rename(params / f"{int(p.stem):05d}.json")
+    out2 = tmp_path / "subject2"
+    assert main(["import", "exavatar", str(seq), "--dataset", "neuman", "--out", str(out2),
+                 "--body-model-dir", str(smplx_model_dir)]) == 0
+    np.testing.assert_array_equal(load_subject(out2).poses, subject.poses)
 
 
 def test_neuman_test_frames_use_the_segmentation_masks(tmp_path, smplx_model_dir):
@@ -78,12 +151,12 @@ def test_neuman_test_frames_use_the_segmentation_masks(tmp_path, smplx_model_dir
     layouts.write_neuman(root, smplx_model_dir)
     seg = np.full((layouts.SIZE, layouts.SIZE), 255, np.uint8)
     seg[10:20, 10:20] = 0  # the person, for the evaluation
-    layouts._png(root / "bike" / "segmentations" / "00004.png", seg)
+    layouts._png(root / "bike" / "segmentations" / "00002.png", seg)
     out = tmp_path / "subject"
     assert main(["import", "exavatar", str(root / "bike"), "--dataset", "neuman", "--out", str(out),
                  "--body-model-dir", str(smplx_model_dir)]) == 0
     subject = load_subject(out)
-    i = subject.frame_names.tolist().index("00004")
+    i = subject.frame_names.tolist().index("00002")
     np.testing.assert_array_equal(subject.mask(i), 1.0 - seg / 255.0)
     assert subject.mask(0)[33, 31] == 1.0 and subject.mask(0)[12, 12] == 0.0
 
@@ -94,8 +167,4 @@ def test_smplx_fits_round_trip(tmp_path, smplx_model_dir, capsys):
     rc = main(["import", "smplx-fits", str(tmp_path / "frames"), str(tmp_path / "fits"), "--out", str(out),
                "--body-model-dir", str(smplx_model_dir)])
     assert rc == 0, capsys.readouterr().err
-    subject = load_subject(out)
-    assert subject.split.tolist() == [f["split"] for f in scene.frames]
-    for i, frame in enumerate(scene.frames):
-        want = reference_pixels(smplx_model_dir, scene, frame, gender="neutral", num_betas=10)
-        np.testing.assert_allclose(subject_pixels(subject, i), want, atol=1e-2)
+    check_against_smplx(load_subject(out), scene, smplx_model_dir, num_betas=10)
