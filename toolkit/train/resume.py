@@ -3,8 +3,10 @@
 config.json names what decides a run's weights: the subject (path and content hash), the extra frames'
 content hash, the training config (and its hash), the code version and the torch thread count.
 ``--resume`` continues a run only when the command gives the same; anything else is refused with a
-message naming what differs. ``--extend-iterations N`` is the one deliberate change: the run goes on
-to N iterations in total, and config.json lists each extension.
+message naming what differs and the command that would resume it. ``--extend-iterations N`` is the one
+deliberate change: the run goes on to N iterations in total, and config.json lists each extension. The
+command that started or extended a run finishes it: an interrupted extension resumes with the same
+``--extend-iterations N``, and an extended run also resumes with the iteration count it was started with.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,7 +26,7 @@ from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.subject import BODY_NPZ, FRAMES_NPZ, SUBJECT_JSON
 from trioman.runtime.image_io import atomic_write_text
-from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.train.config import PRESETS, TrainConfig
 
 CONFIG_JSON = "config.json"
 _SHOWN = 4  # differing config fields named in a refusal
@@ -94,29 +97,73 @@ def config_differences(old: TrainConfig, new: TrainConfig) -> list[str]:
     return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 
+def _flag(field: str) -> str:
+    return "--" + field.replace("_", "-")
+
+
+# AugmentConfig fields whose flag is not "--augment-<field>" (trioman/commands/train.py).
+_AUGMENT_OWN_FLAGS = {"refiner": "--refiner", "examiner": "--examiner", "per_frame": "--per-frame",
+                      "threshold": "--threshold", "align_sources": "--augment-sources"}
+
+
+def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = None) -> str:
+    """The ``trioman train`` command that resumes the run (its subject, preset and flags from config.json;
+    ``--extend-iterations`` when the run was extended, or ``extend_to``)."""
+    saved = TrainConfig.from_dict(record["train"])
+    extensions = record.get("extensions") or []
+    first = extensions[0]["iterations_before"] if extensions else saved.iterations
+    base = PRESETS.get(saved.preset, TrainConfig())
+    words = ["trioman", "train", str(record.get("subject", "SUBJECT")), "--out", str(run)]
+    if saved.preset != "quick":
+        words += ["--preset", saved.preset]
+    if first != base.iterations:
+        words += ["--iterations", str(first)]
+    for name in ("image_scale", "seed", "extra_frames", "extra_weight"):
+        if getattr(saved, name) != getattr(base, name):
+            words += [_flag(name), str(getattr(saved, name))]
+    if saved.augment is not None:
+        aug = saved.augment
+        words += ["--augment", aug.mode]
+        default = dataclasses.asdict(type(aug)(mode=aug.mode, refiner=aug.refiner, examiner=aug.examiner))
+        for name, value in dataclasses.asdict(aug).items():
+            if name != "mode" and value is not None and (name in ("refiner", "examiner") or value != default[name]):
+                words += [_AUGMENT_OWN_FLAGS.get(name, "--augment-" + name.replace("_", "-")), str(value)]
+    words.append("--resume")
+    target = extend_to if extend_to is not None else (saved.iterations if extensions else None)
+    if target is not None:
+        words += ["--extend-iterations", str(target)]
+    return shlex.join(words)
+
+
 def check_resume(run: Path, record: dict[str, Any], subject: Subject, cfg: TrainConfig, step: int,
                  extend_iterations: int | None) -> tuple[TrainConfig, dict[str, Any]]:
     """Refuse to resume the run whose config.json is ``record`` with another subject, config or code version
-    (ValueError naming what differs). -> the run's config and its record, extended to
-    ``extend_iterations`` when given (``step``: the step of the checkpoint the run resumes from)."""
+    (ValueError naming what differs and the command that would resume it). -> the run's config and its
+    record, extended to ``extend_iterations`` when given (``step``: the step of the checkpoint the run resumes
+    from). The same ``extend_iterations`` as the run's last extension continues that extension; without it,
+    the iteration count the run was started with (or any it was extended from) resumes it as recorded."""
     where = f"--resume: {Path(run) / CONFIG_JSON}"
     if record.get("trioman_version") != __version__:
         raise ValueError(f"{where}: the run was made by trioman {record.get('trioman_version')}, this is trioman "
                          f"{__version__}; resume it with that version, or start a new run")
     path = str(Path(subject.root).resolve())
     if record.get("subject") != path:
-        raise ValueError(f"{where}: the run trains on the subject {record.get('subject')}, not {path}")
+        raise ValueError(f"{where}: the run trains on the subject {record.get('subject')}, not {path}; resume it "
+                         f"with `{resume_command(run, record)}`")
     if "subject_sha256" in record and record["subject_sha256"] != subject_sha256(subject):
         raise ValueError(f"{where}: the subject {path} changed since the run started (its files' hash differs from "
                          f"the recorded {record['subject_sha256'][:12]}); start a new run")
     saved = TrainConfig.from_dict(record["train"])
-    given = cfg if extend_iterations is None else dataclasses.replace(cfg, iterations=saved.iterations)
+    extensions = record.get("extensions") or []
+    earlier = {saved.iterations, *(e.get("iterations_before") for e in extensions)}
+    same_count = extend_iterations is not None or cfg.iterations in earlier
+    given = dataclasses.replace(cfg, iterations=saved.iterations) if same_count else cfg
     diff = config_differences(saved, given)
     if diff:
         more = f" and {len(diff) - _SHOWN} more" if len(diff) > _SHOWN else ""
         raise ValueError(f"{where}: the training config differs from the run's ({'; '.join(diff[:_SHOWN])}{more}); "
-                         f"resume with the options the run was started with, or --extend-iterations N to continue it "
-                         f"to N iterations")
+                         f"resume with the options the run was started with: `{resume_command(run, record)}` (or "
+                         f"--extend-iterations N to continue it to N iterations)")
     if saved.extra_frames is not None and record.get("extra_frames_sha256") not in (
             None, subject_sha256(load_subject(saved.extra_frames))):
         raise ValueError(f"{where}: the extra frames {saved.extra_frames} changed since the run started; start a new run")
@@ -126,10 +173,17 @@ def check_resume(run: Path, record: dict[str, Any], subject: Subject, cfg: Train
               f"{torch.get_num_threads()}: the weights will not match an uninterrupted run bit for bit "
               f"(OMP_NUM_THREADS={threads} gives the recorded count)", file=sys.stderr)
     if extend_iterations is None:
+        if cfg.iterations != saved.iterations:
+            print(f"train: note: {Path(run)} was extended to {saved.iterations} iterations (config.json); resuming "
+                  f"to {saved.iterations}", file=sys.stderr)
         return saved, record
+    if extensions and extend_iterations == saved.iterations == extensions[-1].get("iterations"):
+        return saved, record  # the same extension, interrupted: it goes on
     if extend_iterations <= saved.iterations:
+        hint = (f"resume it with `{resume_command(run, record)}`, or extend it further with --extend-iterations N, "
+                f"N > {saved.iterations}")
         raise ValueError(f"--extend-iterations: {extend_iterations} is not more than the run's {saved.iterations} "
-                         f"iterations")
+                         f"iterations; {hint}")
     extended = dataclasses.replace(saved, iterations=extend_iterations)
     extension = {"from_step": step, "iterations_before": saved.iterations, "iterations": extend_iterations,
                  "trioman_version": __version__}

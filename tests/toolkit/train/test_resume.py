@@ -1,0 +1,69 @@
+"""``train --resume``: the command that started or extended a run finishes it, and every refusal names the
+command that would work (toolkit/train/resume.py; issue 26, case 5)."""
+
+import dataclasses
+import json
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("anny")
+
+from trioman.cli import main  # noqa: E402
+from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
+from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
+from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
+from trioman.toolkit.train.config import TrainConfig, preset  # noqa: E402
+from trioman.toolkit.train.loop import train  # noqa: E402
+
+
+TINY = AvatarConfig(keep=0.3, triplane_channels=4, triplane_res=16, hidden=32)
+
+
+@pytest.fixture(scope="module")
+def subject(tmp_path_factory):
+    out = tmp_path_factory.mktemp("subj") / "s"
+    synthesize_subject(SynthConfig(seed=5, size=32, frames=6, texture_size=64), out, progress=False)
+    return out
+
+
+def test_an_interrupted_extension_resumes_with_the_same_command(subject, tmp_path, capsys):
+    cfg = TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY)
+    run = train(subject, tmp_path / "run", cfg, progress=False)
+    # `--resume --extend-iterations 4`, killed after one step of the extension (config.json already extended)
+    train(subject, run, cfg, resume=True, progress=False, extend_iterations=4, stop_after=1)
+    train(subject, run, cfg, resume=True, progress=False, extend_iterations=4)  # the same command finishes it
+    assert load_checkpoint(latest_checkpoint(run))["step"] == 4
+    record = json.loads((run / "config.json").read_text())
+    assert [(e["iterations_before"], e["iterations"]) for e in record["extensions"]] == [(2, 4)]  # one extension
+    capsys.readouterr()
+    train(subject, run, cfg, resume=True, progress=False)  # the starting command resumes the extended run as recorded
+    assert "was extended to 4 iterations" in capsys.readouterr().err
+    command = f"`trioman train {subject.resolve()} --out {run} --iterations 2 --resume --extend-iterations 4`"
+    for change, extend, problem in ((cfg, 3, "--extend-iterations: 3 is not more than the run's 4 iterations; resume it "
+                                              f"with {command}"),
+                                    (dataclasses.replace(cfg, iterations=3), None, f"iterations: 4 -> 3); resume with the "
+                                                                                   f"options the run was started with: "
+                                                                                   f"{command}"),
+                                    (dataclasses.replace(cfg, seed=7), None, f"seed: 0 -> 7); resume with the options "
+                                                                             f"the run was started with: {command}")):
+        with pytest.raises(ValueError) as err:
+            train(subject, run, change, resume=True, progress=False, extend_iterations=extend)
+        assert problem in str(err.value)
+
+
+def test_the_suggested_command_is_the_runs_own(subject, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("trioman.toolkit.lpips.load_lpips_or_say_why", lambda command: None)
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.train.resume import new_record, read_record, resume_command, write_record
+
+    run = tmp_path / "run"
+    record = {"subject": str(subject.resolve()), "extensions": [],
+              "train": preset("full", iterations=7, seed=3, image_scale=0.5).to_dict()}
+    assert resume_command(run, record) == (f"trioman train {subject.resolve()} --out {run} --preset full --iterations 7 "
+                                           f"--image-scale 0.5 --seed 3 --resume")
+    # the command line's refusal is that one line (a run started by `train SUBJECT --out RUN --iterations 1`)
+    write_record(run, new_record(load_subject(subject), preset("quick", iterations=1)))
+    assert main(["train", str(subject), "--out", str(run), "--iterations", "1", "--seed", "2", "--resume", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert f"`{resume_command(run, read_record(run))}`" in err and "--iterations 1 --resume`" in err
