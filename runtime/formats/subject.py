@@ -203,6 +203,8 @@ def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
             raise _fail(where, f"phenotype.{k}", f"expected a finite number, got {v!r}")
     if not isinstance(get("generator"), dict):
         raise _fail(where, "generator", f"expected an object, got {type(meta['generator']).__name__}")
+    if "capture_to_world" in meta:  # optional: imported captures
+        _check_capture_to_world(meta["capture_to_world"], where)
     seqs = get("sequences")
     if not (isinstance(seqs, list) and seqs and all(isinstance(s, str) and s for s in seqs)):
         raise _fail(where, "sequences", f"expected a non-empty list of non-empty names, got {seqs!r}")
@@ -210,6 +212,17 @@ def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
         dup = sorted({s for s in seqs if seqs.count(s) > 1})
         raise _fail(where, "sequences", f"duplicate name(s) {dup}")
     return meta
+
+
+def _check_capture_to_world(value: Any, where: Any) -> None:
+    """A rotation matrix [3, 3] as nested lists: orthonormal within 1e-6, determinant +1."""
+    ok = (isinstance(value, list) and len(value) == 3
+          and all(isinstance(row, list) and len(row) == 3 and all(_is_number(v) for v in row) for row in value))
+    if not ok:
+        raise _fail(where, "capture_to_world", f"expected a 3 x 3 rotation matrix (lists of numbers), got {value!r}")
+    R = np.asarray(value, dtype=np.float64)
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise _fail(where, "capture_to_world", "not a rotation (R R^T != I or det(R) = -1)")
 
 
 def _check_frames(
@@ -388,6 +401,7 @@ def save_subject(
     poses_true: np.ndarray | None = None,  # [N, J, 3]
     overwrite: bool = False,
     inputs: Iterable[str | os.PathLike | None] = (),
+    capture_to_world: np.ndarray | None = None,  # [3, 3] rotation, recorded for imported captures
 ) -> Subject:
     """Write a subject folder at ``path``; returns the written Subject (arrays as they were stored).
 
@@ -426,6 +440,8 @@ def save_subject(
         "generator": _plain_json(generator or {}, where, "generator"),
         "sequences": seq_order,
     }
+    if capture_to_world is not None:
+        meta["capture_to_world"] = np.asarray(capture_to_world, dtype=np.float64).tolist()
     _check_meta(meta, where)
     meta_text = json.dumps(meta, indent=2, allow_nan=False) + "\n"
 

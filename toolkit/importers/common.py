@@ -26,6 +26,7 @@ from trioman.toolkit.body.smplx_model import SMPLXBody, Y_UP_TO_Z_UP, full_pose,
 PARAM_SHAPES = {"root": (3,), "body": (21, 3), "jaw": (3,), "leye": (3,), "reye": (3,), "lhand": (15, 3),
                 "rhand": (15, 3), "transl": (3,)}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+UP_SOURCES = ("body", "cameras", "none")  # where the world's up comes from (``upright``)
 
 
 @dataclass
@@ -254,19 +255,95 @@ def _to_world(records: list[FrameRecord], root_joint: np.ndarray) -> None:
         r.in_camera = False
 
 
+def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector a onto unit vector b (a half turn about an axis normal to a when
+    they are opposite)."""
+    axis = np.cross(a, b)
+    s, c = float(np.linalg.norm(axis)), float(a @ b)
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        normal = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return axis_angle_to_matrix(np.pi * normal / np.linalg.norm(normal))
+    return axis_angle_to_matrix(axis / s * np.arctan2(s, c))
+
+
+def body_up(records: list[FrameRecord], rest_joints: np.ndarray) -> np.ndarray:
+    """The capture world's up from the body, as ml-neuman finds it (``utils/utils.py``,
+    ``smpl_verts_to_center_and_up``: the spine of the rest-posed body placed in the world): the rest spine
+    (pelvis -> spine3, SMPL-X frame) turned by each frame's root rotation, averaged over the frames. [3], unit."""
+    spine = rest_joints[9] - rest_joints[0]
+    spine = spine / np.linalg.norm(spine)
+    dirs = np.stack([axis_angle_to_matrix(r.params["root"]) @ spine for r in records])
+    mean = dirs.mean(0)
+    if np.linalg.norm(mean) < 0.5:
+        raise FormatError("--up body: the body's spine points in no common direction over the frames (mean length "
+                          f"{np.linalg.norm(mean):.2f}); pass --up cameras or --up none")
+    return mean / np.linalg.norm(mean)
+
+
+def cameras_up(records: list[FrameRecord]) -> np.ndarray:
+    """The capture world's up from the cameras: the mean of each camera's up (its -y axis in the world). [3], unit."""
+    mean = -np.stack([r.R[1] for r in records]).mean(0)
+    if np.linalg.norm(mean) < 0.5:
+        raise FormatError("--up cameras: the cameras' up vectors point in no common direction (mean length "
+                          f"{np.linalg.norm(mean):.2f}); pass --up body or --up none")
+    return mean / np.linalg.norm(mean)
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0))))
+
+
+def _rotate_world(records: list[FrameRecord], U: np.ndarray, root_joint: np.ndarray) -> None:
+    """Turn the capture's world by U (x -> U x) about its origin: root rotations U R_root, translations
+    U (j0 + transl) - j0, cameras R U^T (t unchanged), so every camera sees the same pixels."""
+    for r in records:
+        r.params["root"] = matrix_to_axis_angle(U @ axis_angle_to_matrix(r.params["root"]))
+        r.params["transl"] = U @ (root_joint + r.params["transl"]) - root_joint
+        r.R = r.R @ U.T
+
+
+def upright(records: list[FrameRecord], rest_joints: np.ndarray, up: str,
+            say: Callable[[str], None]) -> tuple[np.ndarray, dict[str, Any]]:
+    """Turn the capture's world (params in the world already) so its up is SMPL-X's +y, which becomes TrioMan's
+    +z. up: "body" (the rest spine turned by the roots), "cameras" (their mean up) or "none" (the capture's
+    world kept: its +y is taken as up). -> (U [3, 3], what to record in the generator)."""
+    if up not in UP_SOURCES:
+        raise ValueError(f"--up: expected one of {list(UP_SOURCES)}, got {up!r}")
+    y = np.array([0.0, 1.0, 0.0])
+    body, cams = body_up(records, rest_joints), cameras_up(records)
+    chosen = {"body": body, "cameras": cams, "none": y}[up]
+    U = _rotation_onto(chosen, y)
+    _rotate_world(records, U, rest_joints[0])
+    info = {"source": up, "turn_deg": round(_angle_deg(chosen, y), 3),
+            "body_to_cameras_deg": round(_angle_deg(body, cams), 3)}
+    say(f"import: world up from {'the capture (+y kept)' if up == 'none' else 'the ' + up}: the capture's world is turned "
+        f"by {info['turn_deg']:.1f} deg so the person stands along +z; the body's and the cameras' up differ by "
+        f"{info['body_to_cameras_deg']:.1f} deg")
+    return U, info
+
+
 def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], generator: dict[str, Any],
-                  overwrite: bool = False) -> Subject:
+                  overwrite: bool = False, up: str = "body", say: Callable[[str], None] = print) -> Subject:
     """Check the frames against each other and write the subject (images premultiplied by their mask, on black).
 
-    Poses are SMPL-X full poses and everything is moved to TrioMan's z-up world (docs/formats.md)."""
+    Poses are SMPL-X full poses and everything is moved to TrioMan's z-up world (docs/formats.md), turned so
+    the person stands along +z (``upright``); subject.json's ``capture_to_world`` records the rotation from the
+    capture's world (cameras' and fits' frame) to the subject's."""
     if not records:
         raise FormatError(f"{out}: no frames to import")
     splits = {r.split for r in records}
     if "train" not in splits:
         raise FormatError(f"{out}: no training frames (check the split lists)")
+    if up not in UP_SOURCES:
+        raise ValueError(f"--up: expected one of {list(UP_SOURCES)}, got {up!r}")
     W, H = image_size(records[0].image)
-    root_joint = body.rest_joints[0].double().numpy() @ Y_UP_TO_Z_UP  # back to SMPL-X's frame
+    rest_joints = body.rest_joints.double().numpy() @ Y_UP_TO_Z_UP  # back to SMPL-X's frame
+    root_joint = rest_joints[0]
     _to_world(records, root_joint)
+    U, up_info = upright(records, rest_joints, up, say)
+    generator = {**generator, "up": up_info}
     p = {k: np.stack([r.params[k] for r in records]) for k in PARAM_SHAPES}
     pose = full_pose(body.hand_mean.double().numpy(), p["root"], p["body"], p["jaw"], p["leye"], p["reye"],
                      p["lhand"], p["rhand"])
@@ -294,4 +371,4 @@ def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], genera
         K=K.astype(np.float32), viewmat=viewmat_to_z_up(view).astype(np.float32), split=[r.split for r in records],
         sequence=[r.sequence for r in records], images=(f[0] for f in a), masks=(f[1] for f in b), width=W, height=H,
         body_model="smplx", background=(0.0, 0.0, 0.0), generator=generator,
-        frame_names=[r.name for r in records], overwrite=overwrite)
+        frame_names=[r.name for r in records], overwrite=overwrite, capture_to_world=Y_UP_TO_Z_UP @ U)

@@ -205,8 +205,10 @@ def read_custom(video_dir: Path) -> list[FrameRecord]:
 
 
 def import_exavatar(root: str | Path, dataset: str, out: str | Path, body: BodyConfig, subject: str | None = None,
-                    allow_pickle: bool = False, overwrite: bool = False, say: Callable[[str], None] = print) -> Subject:
-    """Convert a capture in ExAvatar's layout to a subject folder at ``out`` (nothing is written on error)."""
+                    allow_pickle: bool = False, overwrite: bool = False, say: Callable[[str], None] = print,
+                    up: str = "body") -> Subject:
+    """Convert a capture in ExAvatar's layout to a subject folder at ``out`` (nothing is written on error).
+    up: where the world's up comes from (``common.upright``: "body", "cameras" or "none")."""
     if dataset not in DATASETS:
         raise ValueError(f"--dataset: unknown dataset {dataset!r}; expected one of {list(DATASETS)}")
     folder = Path(root) / subject if subject else Path(root)
@@ -219,4 +221,4 @@ def import_exavatar(root: str | Path, dataset: str, out: str | Path, body: BodyC
     say(f"import: {EXPRESSION_NOTE}")
     generator = {"tool": "trioman import exavatar", "dataset": dataset, "source": str(folder.resolve()),
                  "gender": body.gender, "num_betas": body.num_betas, "flat_hand_mean": body.flat_hand_mean}
-    return write_subject(Path(out), smplx_body, records, generator, overwrite=overwrite)
+    return write_subject(Path(out), smplx_body, records, generator, overwrite=overwrite, up=up, say=say)

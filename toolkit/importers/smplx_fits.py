@@ -53,7 +53,8 @@ def _meta_file(fits_dir: Path, fit: Path) -> Path:
 
 def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | Path, model_dir: str | Path,
                       masks_dir: str | Path | None = None, gender: str = "neutral", flat_hand_mean: bool = False,
-                      test_every: int = 5, overwrite: bool = False, say: Callable[[str], None] = print) -> Subject:
+                      test_every: int = 5, overwrite: bool = False, say: Callable[[str], None] = print,
+                      up: str = "body") -> Subject:
     """Write the subject; every ``test_every``-th frame is a test frame (0: none). Nothing is written on error."""
     frames_dir, fits_dir = Path(frames_dir), Path(fits_dir)
     masks_dir = Path(masks_dir) if masks_dir is not None else frames_dir.parent / "masks"
@@ -99,4 +100,4 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
     say("import: expression coefficients are ignored: a subject carries no per-frame vertex offsets")
     generator = {"tool": "trioman import smplx-fits", "frames": str(frames_dir.resolve()), "fits": str(fits_dir.resolve()),
                  "gender": gender, "num_betas": len(mean_betas), "flat_hand_mean": flat_hand_mean, "test_every": test_every}
-    return write_subject(Path(out), body, records, generator, overwrite=overwrite)
+    return write_subject(Path(out), body, records, generator, overwrite=overwrite, up=up, say=say)

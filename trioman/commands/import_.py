@@ -15,6 +15,9 @@ def _body_arguments(parser: argparse.ArgumentParser, gender: str, num_betas: boo
     parser.add_argument("--flat-hand-mean", action="store_true",
                         help="hand poses are absolute (default: relative to SMPL-X's hand mean, as smplx and ExAvatar use)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing subject folder at --out")
+    parser.add_argument("--up", default="body", choices=("body", "cameras", "none"),
+                        help="where the world's up comes from: the body's spine over the frames (default), the cameras' "
+                             "mean up, or none (the capture's +y); the world is turned so the person stands along +z")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,13 +45,13 @@ def run(args: argparse.Namespace) -> int:
 
         body = BodyConfig(args.body_model_dir, args.gender, args.num_betas, args.flat_hand_mean)
         subject = import_exavatar(args.root, args.dataset, args.out, body, subject=args.subject,
-                                  allow_pickle=args.allow_pickle, overwrite=args.overwrite)
+                                  allow_pickle=args.allow_pickle, overwrite=args.overwrite, up=args.up)
     else:
         from trioman.toolkit.importers.smplx_fits import import_smplx_fits
 
         subject = import_smplx_fits(args.frames, args.fits, args.out, args.body_model_dir, masks_dir=args.masks,
                                     gender=args.gender, flat_hand_mean=args.flat_hand_mean,
-                                    test_every=args.test_every, overwrite=args.overwrite)
+                                    test_every=args.test_every, overwrite=args.overwrite, up=args.up)
     counts = {s: len(subject.indices(s)) for s in ("train", "test")}
     print(f"import: subject {subject.root}: {subject.num_frames} frames ({counts['train']} train, {counts['test']} test), "
           f"{subject.width}x{subject.height}, SMPL-X body ({subject.num_joints} joints)")

@@ -120,3 +120,31 @@ def test_missing_model_file_from_the_command_line(tmp_path, smplx_model_dir, cap
     assert rc == 1 and "\n" not in err
     assert "SMPLX_MALE.npz: SMPL-X model file not found" in err and "licensed" in err and "nowhere" in err
     check_nothing_written(tmp_path, out)
+
+
+def test_capture_to_world_must_be_a_rotation(tmp_path, smplx_model_dir):
+    """subject.json's capture_to_world (written by the importers) is checked on load: a 3 x 3 rotation."""
+    from trioman.runtime.formats import load_subject
+
+    layouts.write_custom(tmp_path / "data", smplx_model_dir)
+    out = tmp_path / "subject"
+    import_exavatar(tmp_path / "data" / "myvideo", "custom", out, BodyConfig(str(smplx_model_dir)), say=lambda _: None)
+    meta_path = out / "subject.json"
+    meta = json.loads(meta_path.read_text())
+    R = np.asarray(meta["capture_to_world"])
+    assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) > 0
+    for bad, why in ((np.diag([1.0, 1.0, -1.0]).tolist(), "not a rotation"), ([[1, 0, 0], [0, 1, 0]], "3 x 3")):
+        meta_path.write_text(json.dumps({**meta, "capture_to_world": bad}))
+        with pytest.raises(FormatError, match=f"capture_to_world.*{why}"):
+            load_subject(out)
+
+
+def test_up_body_needs_a_common_spine_direction(tmp_path, smplx_model_dir):
+    """--up body on fits whose roots point every way (no person stands like that) says to pick another source."""
+    def scatter_roots(folder):
+        fits = folder / "smplx_optimized" / "smplx_params_smoothed"
+        for n, axis in enumerate(([0, 0, 0], [np.pi, 0, 0], [np.pi / 2, 0, 0], [-np.pi / 2, 0, 0])):
+            edit_json(fits / f"{n}.json", "root_pose", axis)
+
+    msg = exavatar(tmp_path, smplx_model_dir, "custom", scatter_roots)
+    assert msg.startswith("--up body: the body's spine points in no common direction") and "--up cameras" in msg

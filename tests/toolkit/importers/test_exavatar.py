@@ -12,6 +12,7 @@ smplx = pytest.importorskip("smplx", reason="needs the 'smplx' extra: pip instal
 
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_subject  # noqa: E402
+from trioman.toolkit.body.smplx_model import JOINT_NAMES, Y_UP_TO_Z_UP  # noqa: E402
 from tests.toolkit.importers import layouts  # noqa: E402
 
 WRITERS = {"xhumans": layouts.write_xhumans, "neuman": layouts.write_neuman, "custom": layouts.write_custom}
@@ -87,6 +88,21 @@ def check_against_smplx(subject, scene, model_dir, num_betas=layouts.NUM_BETAS) 
         G = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])
         pelvis = G[:1, :3, 3] @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
         np.testing.assert_allclose(pixels(pelvis, frame["focal"], frame["princpt"])[0], frame["princpt"], atol=1e-3)
+    check_upright(subject, scene)
+
+
+HEAD, FEET = JOINT_NAMES.index("head"), [JOINT_NAMES.index("left_foot"), JOINT_NAMES.index("right_foot")]
+
+
+def check_upright(subject, scene, max_tilt_deg=10.0) -> None:
+    """In every frame the head is above both feet along +z, and subject.json's capture_to_world takes the
+    capture's true up (the fixture's) to within max_tilt_deg of +z."""
+    for i in range(subject.num_frames):
+        z = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])[:, 2, 3]
+        assert z[HEAD] > z[FEET].max(), f"frame {subject.frame_names[i]}: head {z[HEAD]:.2f} m, feet {z[FEET]} m"
+    up = np.asarray(subject.meta["capture_to_world"]) @ scene.up
+    assert np.degrees(np.arccos(np.clip(up[2], -1, 1))) < max_tilt_deg
+    assert subject.meta["generator"]["up"]["source"] == "body"
 
 
 def run_import(tmp_path, dataset, model_dir, *extra):
@@ -143,6 +159,29 @@ def test_neuman_as_upstream_writes_it(tmp_path, smplx_model_dir):
     assert main(["import", "exavatar", str(seq), "--dataset", "neuman", "--out", str(out2),
                  "--body-model-dir", str(smplx_model_dir)]) == 0
     np.testing.assert_array_equal(load_subject(out2).poses, subject.poses)
+
+
+def test_the_upright_turn_leaves_every_pixel_in_place(tmp_path, smplx_model_dir, capsys):
+    """NeuMan (COLMAP world with a random up): --up none keeps the capture's world (its +y taken as up), --up
+    cameras and --up body turn it; the posed body seen through each frame's camera is the same in all three."""
+    root = tmp_path / "data"
+    scene = layouts.write_neuman(root, smplx_model_dir)
+    subjects = {}
+    for up in ("none", "cameras", "body"):
+        out = tmp_path / f"subject_{up}"
+        assert main(["import", "exavatar", str(root / "bike"), "--dataset", "neuman", "--out", str(out),
+                     "--body-model-dir", str(smplx_model_dir), "--up", up]) == 0
+        assert f"world up from {'the capture' if up == 'none' else 'the ' + up}" in capsys.readouterr().out
+        subjects[up] = load_subject(out)
+    np.testing.assert_allclose(subjects["none"].meta["capture_to_world"], Y_UP_TO_Z_UP, atol=1e-12)
+    for up in ("cameras", "body"):
+        s = subjects[up]
+        assert s.meta["generator"]["up"]["source"] == up
+        np.testing.assert_allclose(s.K, subjects["none"].K)
+        for i in range(s.num_frames):
+            np.testing.assert_allclose(subject_vertices(s, i), subject_vertices(subjects["none"], i), atol=2e-5)
+        tilt = np.degrees(np.arccos((np.asarray(s.meta["capture_to_world"]) @ scene.up)[2]))
+        assert tilt < 10.0, f"--up {up}: the capture's up lands {tilt:.1f} deg from +z"
 
 
 def test_neuman_test_frames_use_the_segmentation_masks(tmp_path, smplx_model_dir):
