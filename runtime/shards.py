@@ -2,13 +2,17 @@
 machine or many sharing a folder, each own the items at positions p with p % N == I (whole subjects of
 a corpus, whole source frames of an augment run) and write only their own files, atomically. A shard
 records its status in ``<out>/shards/I-of-N.json`` ("running", then "complete" or "failed" with the
-error); the merge reads every record, refuses a missing, unfinished or failed shard or one run with
+error) and holds ``<out>/shards/I-of-N.lock``, created exclusively, while it runs, so two jobs of one shard
+never run together; the merge reads every record, refuses a missing, unfinished or failed shard or one run with
 other settings, naming it, and then assembles the final files as one process would."""
 
 from __future__ import annotations
 
 import json
+import os
 import re
+import socket
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,20 +68,57 @@ def _write(path: Path, record: Mapping[str, Any]) -> None:
     atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
 
 
+def _lock(path: Path, shard: Shard) -> None:
+    """Create the shard's lock file exclusively (one job of a shard at a time, on every machine sharing the
+    folder), or refuse naming who holds it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except FileExistsError:
+        try:
+            holder = json.loads(path.read_text(encoding="utf-8"))
+            who = f"pid {holder['pid']} on {holder['host']} since {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(holder['started']))}"
+            gone = holder["host"] == socket.gethostname() and not _alive(int(holder["pid"]))
+        except (OSError, ValueError, KeyError, TypeError):
+            who, gone = "being started", False
+        state = "was killed (that process is gone)" if gone else "is running"
+        raise ValueError(f"--shard {shard}: another job of this shard {state} ({who}; lock {path}); "
+                         + (f"remove {path} and run it again" if gone else
+                            f"wait for it, or if it was killed, remove {path} and run it again")) from None
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}) + "\n")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
 @contextmanager
 def shard_run(out: str | Path, shard: Shard, settings: Mapping[str, Any], items: Sequence[str]) -> Iterator[None]:
     """The shard's record around its work: "running" before, "complete" after, "failed" with the
     error when the work raises (the error goes on). ``settings`` must be JSON and equal the merge's;
-    ``items`` names what the shard owns."""
+    ``items`` names what the shard owns. The shard's lock (``I-of-N.lock``, an exclusive create) is held
+    throughout: a second job of the same shard is refused before it writes anything."""
     path = shard.record_path(Path(out))
-    record = {"shard": str(shard), "settings": settings, "items": list(items)}
-    _write(path, {**record, "status": "running"})
+    lock = path.with_suffix(".lock")
+    _lock(lock, shard)
     try:
-        yield
-    except BaseException as err:
-        _write(path, {**record, "status": "failed", "error": f"{type(err).__name__}: {err}"})
-        raise
-    _write(path, {**record, "status": "complete"})
+        record = {"shard": str(shard), "settings": settings, "items": list(items)}
+        _write(path, {**record, "status": "running"})
+        try:
+            yield
+        except BaseException as err:
+            _write(path, {**record, "status": "failed", "error": f"{type(err).__name__}: {err}"})
+            raise
+        _write(path, {**record, "status": "complete"})
+    finally:
+        lock.unlink(missing_ok=True)
 
 
 def check_shards(out: str | Path, settings: Mapping[str, Any]) -> list[dict[str, Any]]:
