@@ -25,7 +25,8 @@ from trioman.toolkit.train.loop import render
 
 WHITE = torch.ones(3)
 PROTOCOLS = ("ours", "exavatar")
-# --protocol exavatar: ExAvatar's evaluation (eval_xhumans.py / eval_neuman.py): both images composited over
+# --protocol exavatar: ExAvatar's evaluation (ExAvatar_RELEASE avatar/tools/eval_neuman.py without --include_bkg;
+# the release holds no X-Humans evaluation script, so X-Humans is scored the same way): both images composited over
 # white outside the GT mask, full image, no crop, torchmetrics PSNR and SSIM (data range 1), LPIPS-AlexNet
 # on [-1, 1], mean over frames. Its SSIM depends on the torchmetrics release (see trioman.toolkit.metrics):
 # both are reported, ">= 1.5" (the reflect-padded border, also our 'ssim') and "<= 1.4" (the valid region).

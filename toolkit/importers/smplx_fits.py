@@ -5,7 +5,7 @@ SMPLer-X writes per frame and person ``smplx/{frame:05}_{person}.npz`` (``global
 [1, 10], ``expression`` [1, 10], ``transl`` [1, 3]; eye poses optional) and ``meta/{frame:05}_{person}.json``
 (``focal`` [2], ``princpt`` [2], pixels of the full frame). The parameters are in the camera frame of a
 camera at the origin (R = I, t = 0). Person 0 is imported; the body's shape is the mean of the per-frame
-betas. Frames come from FRAMES_DIR (``N.png`` / ``.jpg``, N the frame number) and masks (255 = person)
+betas, each frame's translation corrected so its pelvis stays where its own betas put it. Frames come from FRAMES_DIR (``N.png`` / ``.jpg``, N the frame number) and masks (255 = person)
 from ``--masks`` (default: a ``masks/`` folder next to FRAMES_DIR).
 """
 
@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from trioman.runtime.formats import FormatError, Subject
-from trioman.toolkit.body.smplx_model import SMPLXBody
+from trioman.toolkit.body.smplx_model import SMPLXBody, load_model_arrays, model_file
 from trioman.toolkit.importers.common import (
     FrameRecord, array, images_by_index, read_gray, read_json, read_npz, smplx_params, write_subject,
 )
@@ -28,20 +28,22 @@ SMPLERX_KEYS = {"root": "global_orient", "body": "body_pose", "jaw": "jaw_pose",
 _STEM = re.compile(r"(\d+)_(\d+)")
 
 
-def _fit_files(fits_dir: Path) -> dict[int, Path]:
-    """Person 0's (lowest person id's) .npz per frame number."""
+def _fit_files(fits_dir: Path) -> tuple[dict[int, Path], int]:
+    """Person 0's (lowest person id's) .npz per frame number, and how many frames hold several people."""
     folder = fits_dir / "smplx" if (fits_dir / "smplx").is_dir() else fits_dir
     found: dict[int, tuple[int, Path]] = {}
+    people: dict[int, int] = {}
     for p in sorted(folder.glob("*.npz")):
         m = _STEM.fullmatch(p.stem)
         if m is None:
             raise FormatError(f"{p}: expected a name FRAME_PERSON.npz (e.g. 00012_0.npz), as SMPLer-X writes")
         frame, person = int(m[1]), int(m[2])
+        people[frame] = people.get(frame, 0) + 1
         if frame not in found or person < found[frame][0]:
             found[frame] = (person, p)
     if not found:
         raise FormatError(f"{folder}: no SMPL-X fits (*.npz)")
-    return {f: p for f, (_, p) in found.items()}
+    return {f: p for f, (_, p) in found.items()}, sum(n > 1 for n in people.values())
 
 
 def _meta_file(fits_dir: Path, fit: Path) -> Path:
@@ -62,7 +64,11 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
         raise ValueError(f"--test-every: must be >= 0, got {test_every}")
     images = images_by_index(frames_dir, "frames")
     masks = images_by_index(masks_dir, "masks (pass --masks DIR: one PNG per frame, 255 = person)")
-    fits = _fit_files(fits_dir)
+    fits, crowded = _fit_files(fits_dir)
+    if crowded:
+        say(f"import: {crowded} of {len(fits)} frames hold several people; person 0 of each frame is imported, but "
+            f"SMPLer-X numbers the people of each frame anew (the detector's order; without --multi_person it keeps "
+            f"only the largest detection) and never tracks them, so person 0 may change from frame to frame")
     for what, table, folder in (("SMPL-X fit", fits, fits_dir), ("mask", masks, masks_dir)):
         missing = sorted(set(images) - set(table))
         if missing:
@@ -97,6 +103,12 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
             princpt=array(meta_path, "princpt", meta["princpt"], (2,)), in_camera=True))
     mean_betas = np.mean(betas, axis=0)
     body = SMPLXBody(model_dir, gender=gender, num_betas=len(mean_betas), flat_hand_mean=flat_hand_mean, betas=mean_betas)
+    # One shape for all frames: keep each frame's pelvis where its own betas put it (the posed pelvis is the rest
+    # pelvis + transl, and the rest pelvis is linear in the betas), so only the limbs change with the mean shape.
+    model = load_model_arrays(model_file(model_dir, gender))
+    pelvis_per_beta = np.einsum("v,vck->ck", model["J_regressor"][0], model["shapedirs"][:, :, : len(mean_betas)])
+    for r, b in zip(records, betas):
+        r.params["transl"] = r.params["transl"] + pelvis_per_beta @ (b - mean_betas)
     say("import: expression coefficients are ignored: a subject carries no per-frame vertex offsets")
     generator = {"tool": "trioman import smplx-fits", "frames": str(frames_dir.resolve()), "fits": str(fits_dir.resolve()),
                  "gender": gender, "num_betas": len(mean_betas), "flat_hand_mean": flat_hand_mean, "test_every": test_every}

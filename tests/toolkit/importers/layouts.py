@@ -301,26 +301,38 @@ def write_xhumans(root: Path, model_dir: Path, seed: int = 0) -> Scene:
 
 
 def write_smplerx(root: Path, model_dir: Path, seed: int = 3) -> Scene:
-    """ROOT/frames/%05d.png, ROOT/masks/, ROOT/fits/{smplx,meta}/%05d_0.npz|json: 5 frames (the 5th is test),
-    in the frame of a camera at the origin, the person standing along about -y."""
+    """SMPLer-X's demo output for 5 frames (the 5th is test), laid out as caizhongang/SMPLer-X main/inference.py
+    writes it: frames read as ``{frame:06d}.jpg`` from frame 1 (its --start default), fits
+    ``smplx/{frame:05}_{bbox_id}.npz`` (global_orient [1, 3], body_pose [21, 3], hand poses [15, 3], jaw_pose,
+    leye_pose and reye_pose (zeros) [1, 3], betas [1, 10], expression [1, 10], transl = cam_trans [1, 3]: smplx's
+    transl, its mesh being the layer's vertices + cam_trans) and ``meta/{frame:05}_{bbox_id}.json`` with a
+    per-frame focal and princpt (its crop's camera in full-image pixels). Frames 2 and 4 hold a second person
+    (bbox_id 1). Camera at the origin; the person stands along about -y."""
     rng = np.random.default_rng(seed)
     betas = rng.normal(scale=0.5, size=10)
     scene = Scene(betas=betas, gender="neutral", up=axis_angle_to_matrix(np.array([0.15, 0.0, 0.0])) @ -E_Y)
     j0 = _pelvis(model_dir, scene)
-    for idx in range(5):
-        name = f"{idx:05d}"
-        pelvis = np.array([0.0, 0.0, DISTANCE])
-        p = _fit(rng, _standing_root(rng, scene.up), pelvis, np.eye(3), np.zeros(3), j0, in_camera=True)
+    for frame in range(1, 6):
         img, mask = _image_and_mask(rng)
-        _png(root / "frames" / f"{name}.png", img)
-        _png(root / "masks" / f"{name}.png", mask)
-        (root / "fits" / "smplx").mkdir(parents=True, exist_ok=True)
-        np.savez(root / "fits" / "smplx" / f"{name}_0.npz", global_orient=np.array(p["root_pose"])[None],
-                 body_pose=np.array(p["body_pose"]), left_hand_pose=np.array(p["lhand_pose"]),
-                 right_hand_pose=np.array(p["rhand_pose"]), jaw_pose=np.array(p["jaw_pose"])[None],
-                 betas=betas[None], expression=rng.normal(size=(1, 10)), transl=np.array(p["trans"])[None])
-        _json(root / "fits" / "meta" / f"{name}_0.json", {"focal": list(FOCAL), "princpt": list(PRINCPT)})
-        p = {**p, "leye_pose": [0.0] * 3, "reye_pose": [0.0] * 3}
-        scene.frames.append({"name": name, "split": "test" if idx == 4 else "train", "params": p, "R": np.eye(3),
-                             "t": np.zeros(3), "in_camera": True, "focal": FOCAL, "princpt": PRINCPT})
+        _png(root / "frames" / f"{frame:06d}.jpg", img)
+        _png(root / "masks" / f"{frame:06d}.png", mask)
+        focal = (FOCAL[0] * (1 + 0.1 * frame), FOCAL[1] * (1 + 0.1 * frame))
+        princpt = (PRINCPT[0] + frame, PRINCPT[1] - frame)
+        for person in (0, 1) if frame in (2, 4) else (0,):
+            pelvis = np.array([0.0, 0.0, DISTANCE]) if person == 0 else np.array([1.0, 0.2, 4.0])
+            p = _fit(rng, _standing_root(rng, scene.up), pelvis, np.eye(3), np.zeros(3), j0, in_camera=True)
+            p = {**p, "leye_pose": [0.0] * 3, "reye_pose": [0.0] * 3}
+            (root / "fits" / "smplx").mkdir(parents=True, exist_ok=True)
+            np.savez(root / "fits" / "smplx" / f"{frame:05}_{person}.npz", global_orient=np.array(p["root_pose"])[None],
+                     body_pose=np.array(p["body_pose"]), left_hand_pose=np.array(p["lhand_pose"]),
+                     right_hand_pose=np.array(p["rhand_pose"]), jaw_pose=np.array(p["jaw_pose"])[None],
+                     leye_pose=np.zeros((1, 3)), reye_pose=np.zeros((1, 3)), betas=betas[None],
+                     expression=rng.normal(size=(1, 10)), transl=np.array(p["trans"])[None])
+            _json(root / "fits" / "meta" / f"{frame:05}_{person}.json",
+                  {"focal": list(focal), "princpt": list(princpt), "bbox": [0.0, 0.0, 64.0, 64.0],
+                   "bbox_mmdet": [1.0, 1.0, 60.0, 62.0], "bbox_id": person, "img_path": f"{frame:06d}.jpg"})
+            if person == 0:
+                scene.frames.append({"name": f"{frame:06d}", "split": "test" if frame == 5 else "train", "params": p,
+                                     "R": np.eye(3), "t": np.zeros(3), "in_camera": True, "focal": focal,
+                                     "princpt": princpt})
     return scene

@@ -78,9 +78,9 @@ def test_frame_counts_disagree(tmp_path, smplx_model_dir):
     msg = exavatar(tmp_path, smplx_model_dir, "xhumans", one_camera_too_few)
     assert "Take2/render/cameras.npz: extrinsic: 1 cameras for 2 images" in msg
     layouts.write_smplerx(tmp_path / "fits_case", smplx_model_dir)
-    (tmp_path / "fits_case" / "fits" / "smplx" / "00002_0.npz").unlink()
+    (tmp_path / "fits_case" / "fits" / "smplx" / "00003_0.npz").unlink()
     out = tmp_path / "subject2"
-    with pytest.raises(FormatError, match=r"no SMPL-X fit for frame 2 \(00002.png\); 5 frames, 4 SMPL-X fits"):
+    with pytest.raises(FormatError, match=r"no SMPL-X fit for frame 3 \(000003.jpg\); 5 frames, 4 SMPL-X fits"):
         import_smplx_fits(tmp_path / "fits_case" / "frames", tmp_path / "fits_case" / "fits", out, smplx_model_dir)
     check_nothing_written(tmp_path, out)
 

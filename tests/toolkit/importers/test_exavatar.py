@@ -206,4 +206,27 @@ def test_smplx_fits_round_trip(tmp_path, smplx_model_dir, capsys):
     rc = main(["import", "smplx-fits", str(tmp_path / "frames"), str(tmp_path / "fits"), "--out", str(out),
                "--body-model-dir", str(smplx_model_dir)])
     assert rc == 0, capsys.readouterr().err
+    assert "2 of 5 frames hold several people; person 0 of each frame is imported" in capsys.readouterr().out
     check_against_smplx(load_subject(out), scene, smplx_model_dir, num_betas=10)
+
+
+def test_smplx_fits_keep_each_frames_pelvis_under_the_mean_shape(tmp_path, smplx_model_dir):
+    """Per-frame betas differ; the subject has their mean, and each frame's pelvis stays where its own betas put it."""
+    scene = layouts.write_smplerx(tmp_path, smplx_model_dir)
+    fit = tmp_path / "fits" / "smplx" / "00001_0.npz"
+    arrays = dict(np.load(fit))
+    arrays["betas"] = arrays["betas"] + np.random.default_rng(0).normal(scale=1.0, size=(1, 10))
+    np.savez(fit, **arrays)
+    out = tmp_path / "subject"
+    assert main(["import", "smplx-fits", str(tmp_path / "frames"), str(tmp_path / "fits"), "--out", str(out),
+                 "--body-model-dir", str(smplx_model_dir)]) == 0
+    subject = load_subject(out)
+    layer = smplx_layer(smplx_model_dir, "neutral", 10, None)
+    for i, frame in enumerate(scene.frames[:2]):
+        p = {k: torch.tensor(np.asarray(v, dtype=np.float64)).reshape(1, -1) for k, v in frame["params"].items()}
+        with torch.no_grad():
+            want = layer(betas=torch.tensor(np.load(tmp_path / "fits" / "smplx" / f"0000{i + 1}_0.npz")["betas"]),
+                         global_orient=p["root_pose"], body_pose=p["body_pose"], transl=p["trans"]).joints[0, 0].numpy()
+        G = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])
+        got = G[0, :3, 3] @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
+        np.testing.assert_allclose(got, want, atol=1e-5)
