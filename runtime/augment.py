@@ -38,7 +38,7 @@ import os
 import re
 import shutil
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from trioman import __version__
+from trioman.runtime.aligned import Aligner, SourceViews
 from trioman.runtime.formats import FormatError, load_avatar, load_subject
 from trioman.runtime.formats.avatar import AVATAR_JSON, sha256_file
 from trioman.runtime.formats.common import _write_npz
@@ -56,7 +57,8 @@ from trioman.runtime.generator import GROUPS, GeneratorConfig, joint_groups, sam
 from trioman.runtime.image_io import (
     atomic_path, atomic_write_bytes, atomic_write_text, is_temp_name, remove_temp_files, write_png,
 )
-from trioman.runtime.normal_map import body_normal_map
+from trioman.runtime.pseudo_gt import STAGES as _STEP_STAGES
+from trioman.runtime.pseudo_gt import MASKS, PseudoConfig, Source, make_pseudo_frames
 from trioman.runtime.render import rasterize
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
@@ -67,9 +69,10 @@ AUGMENT_VERSION = 1
 AUGMENT_JSON = "augment.json"
 RECORDS_DIR = "records"
 HISTOGRAM_PNG = "scores.png"
-STAGES = ("generate", "render", "normal", "refine", "examine", "write")
+STAGES = _STEP_STAGES + ("write",)
 # What a resumed run must share with the run it continues (everything that decides the output bytes).
-_RESUME_KEYS = ("subject", "avatar", "refiner", "examiner", "seed", "per_frame", "threshold", "frames", "generator")
+_RESUME_KEYS = ("subject", "avatar", "refiner", "examiner", "seed", "per_frame", "threshold", "frames", "mask",
+                "generator")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -181,7 +184,7 @@ def _model_info(model: Any, path: Path) -> dict[str, Any]:
 
 def _settings(subject: Any, avatar: Any, avatar_path: Path, refiner: Any, refiner_path: Path, examiner: Any,
               examiner_path: Path | None, seed: int, per_frame: int, threshold: float | None, frames: str,
-              gen_cfg: GeneratorConfig) -> dict[str, Any]:
+              gen_cfg: GeneratorConfig, mask: str) -> dict[str, Any]:
     source = dict(avatar.meta.get("source", {}))
     ref = _model_info(refiner, refiner_path)
     ref["conditions"] = refiner.conditions
@@ -196,6 +199,7 @@ def _settings(subject: Any, avatar: Any, avatar_path: Path, refiner: Any, refine
         "per_frame": int(per_frame),
         "threshold": None if threshold is None else float(threshold),
         "frames": frames,
+        "mask": mask,
         "generator": json.loads(json.dumps(asdict(gen_cfg))),
     }
 
@@ -273,12 +277,15 @@ def augment(
     progress: bool = True,
     shard: Shard | None = None,
     merge: bool = False,
+    mask: str = "carried",
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
     optional Examiner (ONNX files) into the folder ``out`` (module doc). -> the augment.json content.
 
     frames: source frames, "train" (the train split) or "all"; limit: the first ``limit`` of them.
     threshold: drop the chosen candidate when its Examiner score is below it (needs an Examiner).
+    mask: the pseudo frames' mask, "carried" (the body mesh and the source frame's mask carried to the draw) or
+    "alpha" (the avatar render's own alpha); runtime/pseudo_gt.py.
     Every input is checked before any work; a bad one raises ValueError / FileNotFoundError /
     FileExistsError / FormatError naming the option and the value.
     shard: do only that shard's frames, in out/shards/I-of-N (-> its record); merge: assemble ``out``
@@ -287,6 +294,8 @@ def augment(
     from trioman.runtime.models import ExaminerModel, RefinerModel
 
     _check_options(per_frame, threshold, seed, frames, limit, examiner, resume, overwrite)
+    if mask not in MASKS:
+        raise ValueError(f"--mask: expected one of {MASKS}, got {mask!r}")
     gen_cfg = generator if generator is not None else GeneratorConfig()
     if not isinstance(gen_cfg, GeneratorConfig):
         raise ValueError(f"generator: expected a GeneratorConfig, got {type(gen_cfg).__name__}")
@@ -302,10 +311,10 @@ def augment(
 
     subj = load_subject(subject_path)
     earlier = _written_files(out, subj.frame_names.tolist()) if had_output and overwrite else []  # refused first
-    selection = subj.indices("train" if frames == "train" else None)
-    if len(selection) == 0:
+    views_of = subj.indices("train" if frames == "train" else None)  # the frames real pixels are carried from
+    if len(views_of) == 0:
         raise ValueError(f"--frames: subject {subject_path} has no {frames!r} frames")
-    selection = selection[:limit] if limit is not None else selection
+    selection = views_of[:limit] if limit is not None else views_of
     av = load_avatar(avatar_path)
     _check_joints(av, subj, avatar_path)
     ref_model = RefinerModel(refiner_path, threads=threads)
@@ -317,25 +326,54 @@ def augment(
         raise ValueError(f"--refiner: {refiner_path} takes {h}x{w} (H x W) images, but the subject's images are "
                          f"{H}x{W}; export the Refiner at the subject's size ({how})")
     ex_model = None if examiner_path is None else ExaminerModel(examiner_path, threads=threads)
+    pseudo = PseudoConfig(kind="refined" if ex_model is None else "examined", mask=mask, threshold=threshold)
     settings = _settings(subj, av, avatar_path, ref_model, refiner_path, ex_model, examiner_path, seed, per_frame,
-                         threshold, frames, gen_cfg)
+                         threshold, frames, gen_cfg, mask)
     if had_output and resume:
         _check_resume(out, settings)
     names = [str(subj.frame_names[i]) for i in selection]
     if merge:
         return _merge(out, subj, selection, check_shards(out, {**settings, "limit": limit}), settings, ex_model is not None,
                       threshold)
+    step = _Step(av, ref_model, ex_model, _aligner(subj, views_of, pseudo), pseudo,
+                 {int(i): p for p, i in enumerate(views_of)}, seed, per_frame, gen_cfg)
     if shard is not None:
         with shard_run(top, shard, {**settings, "limit": limit}, shard.take(names)):
-            _run(out, subj, shard.take(selection.tolist()), av, ref_model, ex_model, seed, per_frame, threshold, gen_cfg,
-                 earlier, had_output, resume, settings, progress)
+            _run(out, subj, shard.take(selection.tolist()), step, earlier, had_output, resume, settings, progress)
         return json.loads(shard.record_path(top).read_text(encoding="utf-8"))
-    return _run(out, subj, selection.tolist(), av, ref_model, ex_model, seed, per_frame, threshold, gen_cfg, earlier,
-                had_output, resume, settings, progress, finish=True)
+    return _run(out, subj, selection.tolist(), step, earlier, had_output, resume, settings, progress, finish=True)
 
 
-def _run(out: Path, subj: Any, selection: list[int], av: Any, ref_model: Any, ex_model: Any, seed: int, per_frame: int,
-         threshold: float | None, gen_cfg: GeneratorConfig, earlier: list[Path], had_output: bool, resume: bool,
+@dataclass(frozen=True)
+class _Step:
+    """What the augmentation step of every source frame shares."""
+
+    avatar: Any
+    refiner: Any
+    examiner: Any
+    aligner: Aligner | None
+    pseudo: PseudoConfig
+    positions: dict[int, int]  # subject frame index -> position in the aligner's views
+    seed: int
+    per_frame: int
+    generator: GeneratorConfig
+
+
+def _aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig) -> Aligner | None:
+    """The aligned reference over the subject's frames ``indices`` (when the pseudo-GT needs it)."""
+    if not pseudo.needs_aligner:
+        return None
+
+    def image(p: int) -> np.ndarray:
+        i = int(indices[p])
+        return subj.image(i) * subj.mask(i)[..., None]
+
+    views = SourceViews(image, lambda p: subj.mask(int(indices[p])), subj.poses[indices], subj.trans[indices],
+                        subj.viewmat[indices], subj.K[indices], subj.width, subj.height)
+    return Aligner(subj.body, views)
+
+
+def _run(out: Path, subj: Any, selection: list[int], step: _Step, earlier: list[Path], had_output: bool, resume: bool,
          settings: dict[str, Any], progress: bool, finish: bool = False) -> dict[str, Any] | None:
     """The frames of ``selection`` into ``out`` (resuming finished ones); with ``finish`` the assembled
     subject and augment.json (-> its content)."""
@@ -358,7 +396,6 @@ def _run(out: Path, subj: Any, selection: list[int], av: Any, ref_model: Any, ex
     atomic_write_text(out / AUGMENT_JSON, _dump(header))
 
     groups = np.array(joint_groups(subj.body.skeleton))
-    conditions = ref_model.conditions
     records: list[dict[str, Any]] = []
     computed = 0
     start = time.perf_counter()
@@ -368,8 +405,7 @@ def _run(out: Path, subj: Any, selection: list[int], av: Any, ref_model: Any, ex
         name = str(subj.frame_names[i])
         rec = _read_record(out, name, i) if had_output else None
         if rec is None:
-            rec = _augment_frame(subj, i, av, ref_model, ex_model, conditions, out, seed, per_frame, threshold,
-                                 gen_cfg, groups)
+            rec = _augment_frame(subj, i, step, out, groups)
             computed += 1
         records.append(rec)
         accepted += len(rec["frames"])
@@ -378,7 +414,8 @@ def _run(out: Path, subj: Any, selection: list[int], av: Any, ref_model: Any, ex
     seconds = time.perf_counter() - start
     if not finish:
         return None
-    return _finish(out, subj, records, settings, header, ex_model is not None, threshold, computed, seconds)
+    return _finish(out, subj, records, settings, header, step.examiner is not None, step.pseudo.threshold, computed,
+                   seconds)
 
 
 def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, Any]], settings: dict[str, Any],
@@ -413,72 +450,43 @@ def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, A
     return result
 
 
-def _augment_frame(subj: Any, i: int, av: Any, refiner: Any, examiner: Any, conditions: str, out: Path, seed: int,
-                   per_frame: int, threshold: float | None, gen_cfg: GeneratorConfig, groups: np.ndarray) -> dict:
+def _augment_frame(subj: Any, i: int, step: _Step, out: Path, groups: np.ndarray) -> dict:
     t = dict.fromkeys(STAGES, 0.0)
     H, W = subj.height, subj.width
     K, bg = np.array(subj.K[i], dtype=np.float64), subj.background.astype(np.float32)
     name = str(subj.frame_names[i])
 
     t0 = time.perf_counter()
-    fseed = frame_seed(seed, i)
-    cands = sample(subj.body.skeleton, subj.poses[i], subj.trans[i], subj.viewmat[i], fseed, per_frame, gen_cfg)
+    fseed = frame_seed(step.seed, i)
+    cands = sample(subj.body.skeleton, subj.poses[i], subj.trans[i], subj.viewmat[i], fseed, step.per_frame, step.generator)
     real = subj.image(i)
-    t1 = time.perf_counter()
-    t["generate"] = t1 - t0
+    t["generate"] = time.perf_counter() - t0
 
-    coarse, alpha = [], []
-    for c in cands:
-        r = rasterize(*av.gaussians(c.pose, c.trans), c.viewmat, K, W, H, background=bg)
-        coarse.append(np.clip(r.rgb, 0.0, 1.0))
-        alpha.append(np.clip(r.alpha, 0.0, 1.0))
-    coarse_b = np.stack(coarse).astype(np.float32)
-    t2 = time.perf_counter()
-    t["render"] = t2 - t1
+    def render(c: Any) -> tuple[np.ndarray, np.ndarray]:
+        r = rasterize(*step.avatar.gaussians(c.pose, c.trans), c.viewmat, K, W, H, background=bg)
+        return np.clip(r.rgb, 0.0, 1.0), np.clip(r.alpha, 0.0, 1.0)
 
-    normal_b = None
-    if conditions == "tex+geo":
-        normal_b = np.stack([body_normal_map(subj.body, c.pose, c.trans, c.viewmat, K, W, H).rgb for c in cands])
-    t3 = time.perf_counter()
-    t["normal"] = t3 - t2
-
-    reference_b = None if conditions == "none" else np.ascontiguousarray(np.broadcast_to(real, coarse_b.shape))
-    refined = np.asarray(refiner.refine(coarse_b, reference=reference_b, normal=normal_b), dtype=np.float32)
-    if refined.shape != coarse_b.shape:
-        raise FormatError(f"refiner: output shape {list(refined.shape)}, expected {list(coarse_b.shape)}")
-    refined = np.clip(refined, 0.0, 1.0)
-    t4 = time.perf_counter()
-    t["refine"] = t4 - t3
-
-    scores = chosen = None
-    if examiner is not None:
-        choice = examiner.choose(refined, real)
-        scores = [float(s) for s in np.asarray(choice.scores, dtype=np.float64)]
-        chosen = int(choice.index)
-        kept_ids = [chosen] if threshold is None or scores[chosen] >= threshold else []
-    else:
-        kept_ids = list(range(per_frame))
+    made = make_pseudo_frames(cands, Source(step.positions[int(i)], real, K, bg), render, step.pseudo, body=subj.body,
+                              aligner=step.aligner, refiner=step.refiner, examiner=step.examiner, seconds=t)
     t5 = time.perf_counter()
-    t["examine"] = t5 - t4
-
     out_frames, candidates = [], []
     for k, c in enumerate(cands):
         fname = f"{name}_c{k}"
-        if k in kept_ids:
-            a = alpha[k][..., None]  # the image shows the background where the mask is 0 (subject format)
-            write_png(out / IMAGES_DIR / f"{fname}.png", refined[k] * a + (1.0 - a) * bg)
-            write_png(out / MASKS_DIR / f"{fname}.png", alpha[k])
+        if k in made.kept:  # the image shows the background where the mask is 0 (subject format)
+            write_png(out / IMAGES_DIR / f"{fname}.png", made.images[k])
+            write_png(out / MASKS_DIR / f"{fname}.png", made.masks[k])
             out_frames.append({"name": fname, "candidate": k, "pose": c.pose.tolist(), "trans": c.trans.tolist(),
                                "viewmat": c.viewmat.tolist(), "K": K.tolist()})
-        if examiner is None:
+        if made.scores is None:
             status = "kept"
-        elif k != chosen:
+        elif k != made.chosen:
             status = "not_chosen"
         else:
-            status = "accepted" if kept_ids else "rejected"
+            status = "accepted" if made.kept else "rejected"
         candidates.append({
-            "candidate": k, "status": status, "score": None if scores is None else scores[k],
-            "frame": fname if k in kept_ids else None,
+            "candidate": k, "status": status, "score": None if made.scores is None else made.scores[k],
+            "frame": fname if k in made.kept else None,
+            "body_coverage": made.coverage[k] if made.coverage else None,
             "pose_delta_norm": _group_norms(c.delta_pose, groups),
             "camera": {"azimuth": c.camera.azimuth, "elevation": c.camera.elevation,
                        "log_distance": c.camera.log_distance},
@@ -487,8 +495,8 @@ def _augment_frame(subj: Any, i: int, av: Any, refiner: Any, examiner: Any, cond
         "version": AUGMENT_VERSION,
         "source": {"index": int(i), "name": name, "sequence": str(subj.sequence[i])},
         "seed": fseed,
-        "chosen": chosen,
-        "kept": bool(kept_ids),
+        "chosen": made.chosen,
+        "kept": bool(made.kept),
         "candidates": candidates,
         "frames": out_frames,
         "seconds": t,
@@ -521,7 +529,9 @@ def _write_subject(out: Path, subj: Any, frames: list[dict[str, Any]], records: 
         "generator": {"tool": "trioman augment", "version": __version__, "source_subject": settings["subject"]["path"],
                       "avatar": settings["avatar"]["path"], "seed": settings["seed"],
                       "per_frame": settings["per_frame"], "threshold": settings["threshold"],
-                      "examiner": settings["examiner"] is not None, "mask": "avatar render alpha"},
+                      "examiner": settings["examiner"] is not None,
+                      "mask": {"carried": "body mesh and source mask carried to the draw",
+                               "alpha": "avatar render alpha"}[settings.get("mask", "alpha")]},
         "sequences": list(dict.fromkeys(seqs)),
     }
     where = out / SUBJECT_JSON

@@ -17,6 +17,7 @@ from tests.conftest import run_python  # noqa: E402
 from tests.export.test_avatar import tiny_run, trained_like  # noqa: E402,F401 (fixture)
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.augment import AUGMENT_JSON, HISTOGRAM_PNG, STAGES, augment, frame_seed  # noqa: E402
+from trioman.runtime.aligned import Aligner, SourceViews  # noqa: E402
 from trioman.runtime.formats import FormatError, load_avatar, load_subject  # noqa: E402
 from trioman.runtime.formats.avatar import sha256_file  # noqa: E402
 from trioman.runtime.generator import GROUPS, sample  # noqa: E402
@@ -113,8 +114,9 @@ def test_with_an_examiner_the_better_candidate_becomes_a_pseudo_gt_frame(inputs,
             assert set(c["pose_delta_norm"]) <= set(GROUPS) and c["pose_delta_norm"]["root"] == 0.0
         np.testing.assert_array_equal(aug.K[k], src.K[i])
 
-    # Frame 0 again by hand: the candidate from the recorded seed, its render alpha as the mask, the
-    # Refiner fed the real frame and the normal map, the Examiner's scores against the real frame.
+    # Frame 0 again by hand: the candidate from the recorded seed, the carried silhouette as the mask (the body
+    # mesh and the source mask carried to the draw), the Refiner fed the real frame and the normal map, the
+    # Examiner's scores against the real frame.
     rec, i = recs[0], recs[0]["source"]["index"]
     av = load_avatar(inputs.avatar)
     cands = sample(src.body.skeleton, src.poses[i], src.trans[i], src.viewmat[i], rec["seed"], 2)
@@ -123,12 +125,17 @@ def test_with_an_examiner_the_better_candidate_becomes_a_pseudo_gt_frame(inputs,
     np.testing.assert_array_equal(aug.viewmat[0], c.viewmat.astype(np.float32))
     K, W, H = np.array(src.K[i], np.float64), src.width, src.height
     renders = [rasterize(*av.gaussians(x.pose, x.trans), x.viewmat, K, W, H, background=src.background) for x in cands]
-    np.testing.assert_array_equal(to_uint8(read_png(aug.mask_path(0))), to_uint8(np.clip(renders[rec["chosen"]].alpha, 0, 1)))
+    every = src.indices(None)  # --frames all: real pixels are carried from every frame
+    views = SourceViews(lambda p: src.image(int(every[p])) * src.mask(int(every[p]))[..., None], lambda p: src.mask(int(every[p])),
+                        src.poses[every], src.trans[every], src.viewmat[every], src.K[every], W, H)
+    silhouette = Aligner(src.body, views).align(int(np.flatnonzero(every == i)[0]), c.pose, c.trans, c.viewmat, K).silhouette
+    assert silhouette.max() == 1.0 and 0 < silhouette.mean() < 0.9
+    np.testing.assert_array_equal(to_uint8(read_png(aug.mask_path(0))), to_uint8(silhouette))
     real = src.image(i)
     normals = np.stack([body_normal_map(src.body, x.pose, x.trans, x.viewmat, K, W, H).rgb for x in cands])
     refined = RefinerModel(inputs.refiner).refine(np.stack([np.clip(r.rgb, 0, 1) for r in renders]),
                                                    np.stack([real, real]), normals)
-    a = np.clip(renders[rec["chosen"]].alpha, 0, 1)[..., None]  # the refined frame through the render alpha
+    a = silhouette[..., None]  # the refined frame through the mask
     np.testing.assert_array_equal(to_uint8(read_png(aug.image_path(0))),
                                   to_uint8(refined[rec["chosen"]] * a + (1 - a) * src.background))
     np.testing.assert_allclose([c["score"] for c in rec["candidates"]], ExaminerModel(inputs.examiner).score(refined, real),
@@ -146,7 +153,7 @@ def test_with_an_examiner_the_better_candidate_becomes_a_pseudo_gt_frame(inputs,
     ref_meta = RefinerModel(inputs.refiner).meta
     assert st["refiner"]["config_hash"] == ref_meta["trioman.config_hash"] and st["refiner"]["precision"] == "fp32"
     assert st["examiner"]["sha256"] == sha256_file(inputs.examiner)
-    assert (st["seed"], st["per_frame"], st["threshold"], st["frames"]) == (7, 2, None, "all")
+    assert (st["seed"], st["per_frame"], st["threshold"], st["frames"], st["mask"]) == (7, 2, None, "all", "carried")
     assert set(meta["timing"]["ms_per_source_frame"]) == set(STAGES) | {"total"}
     assert all(v >= 0 for v in meta["timing"]["ms_per_source_frame"].values())
 
@@ -352,3 +359,18 @@ def test_augment_runs_without_torch(inputs, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "1 accepted, 0 rejected" in proc.stdout and "ms per source frame" in proc.stdout
     assert load_subject(out).num_frames == 1
+
+
+def test_mask_alpha_keeps_the_render_alpha(inputs, tmp_path):
+    """--mask alpha (the paper's): the pseudo frame's mask is the avatar render's own alpha at the draw."""
+    out = tmp_path / "alpha"
+    run(inputs, out, examiner=False, limit=1, mask="alpha")
+    src, aug, rec = load_subject(inputs.subject), load_subject(out), records(out)[0]
+    i = rec["source"]["index"]
+    c = sample(src.body.skeleton, src.poses[i], src.trans[i], src.viewmat[i], rec["seed"], 2)[0]
+    r = rasterize(*load_avatar(inputs.avatar).gaussians(c.pose, c.trans), c.viewmat, np.array(src.K[i], np.float64),
+                  src.width, src.height, background=src.background)
+    np.testing.assert_array_equal(to_uint8(read_png(aug.mask_path(0))), to_uint8(np.clip(r.alpha, 0, 1)))
+    assert aug.meta["generator"]["mask"] == "avatar render alpha"
+    with pytest.raises(ValueError, match="--mask: expected one of"):
+        run(inputs, tmp_path / "bad", mask="silhouette")

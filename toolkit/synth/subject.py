@@ -197,3 +197,32 @@ def subject_contact_sheet(subject: Subject, train: int = 8, per_test: int = 1) -
             picks += list(idx[np.linspace(len(idx) // 2, len(idx) - 1, per_test).astype(int)])
     labels = [f"{subject.frame_names[i]} {subject.sequence[i].replace('test_', '')}" for i in picks]
     return contact_sheet([subject.image(i) for i in picks], labels, cols=6)
+
+
+class TruthRenderer:
+    """A synthetic subject's own mesh renderer, rebuilt from its subject.json: the truth at any pose and camera
+    (the ceiling of augmentation: what a perfect Refiner would return at a Generator draw)."""
+
+    def __init__(self, subject: Subject) -> None:
+        made = dict(subject.meta.get("generator", {}))
+        if made.pop("tool", None) != "trioman synth":
+            raise ValueError(f"{subject.root}: not a synthetic subject (subject.json generator.tool is not 'trioman synth'); "
+                             "the truth exists only for `trioman synth` subjects")
+        made.pop("version", None)
+        self.cfg = SynthConfig(**made)
+        self.mesh, _ = build_body(self.cfg)
+        self.texture = bake_texture(self.mesh, seed=self.cfg.seed, size=self.cfg.texture_size)
+        self.poses_true = subject.poses if subject.poses_true is None else subject.poses_true
+        self.poses, self.width, self.height = subject.poses, subject.width, subject.height
+
+    def render(self, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """-> (rgb [H, W, 3] on black, mask [H, W]) of the body at ``pose`` [J, 3], ``trans`` [3]."""
+        verts = self.mesh.pose(np.asarray(pose, np.float64), np.asarray(trans, np.float64))
+        return render_textured(self.mesh, verts, self.texture, viewmat, np.asarray(K, np.float64), self.width, self.height,
+                               self.cfg.supersample)
+
+    def at_draw(self, index: int, candidate, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The truth at a Generator candidate of frame ``index``: the candidate's pose change applied to the frame's
+        true pose (the stored pose may carry fitting noise), its camera."""
+        pose = np.asarray(self.poses_true[index], np.float64) + np.asarray(candidate.delta_pose, np.float64)
+        return self.render(pose, candidate.trans, candidate.viewmat, K)

@@ -1,22 +1,12 @@
 """Online augmentation (paper 3.2.3-3.2.7): pseudo-GT frames made during the avatar's own optimisation.
 
 After a warm-up of ``start`` x iterations, every ``refresh`` steps the pool of pseudo-GT frames is
-rebuilt; each of its ``pool`` entries is made as follows:
-
-    source    a training frame T (real image I^T over the subject's background)
-    generate  the Generator draws ``per_frame`` candidates (pose + camera about the subject)
-    render    the current avatar at each candidate (no grad), over the subject's background: the
-              coarse frame I_c and its alpha
-    normal    the body normal map at each candidate (only for a Refiner conditioned on geometry)
-    refine    Refiner(I_c, reference I^T, normal) -> I_r (mode "refined" / "examined")
-    examine   Examiner score of each I_r against I^T; the best is kept, and dropped below
-              ``threshold`` (mode "examined"; no call for a single candidate without a threshold)
-
-Mode "coarse" keeps the rendered candidate itself (the paper's "+ Generator" row). A pseudo frame
-is supervised like a real one with the render's alpha as its mask (its colour premultiplied by that
-alpha), with loss weight ``weight``; each step after the warm-up trains on a pool frame with
-probability ``share``. The pool and this module's random state live in the checkpoints, so a
-resumed run equals an uninterrupted one.
+rebuilt: each of its ``pool`` entries is a random training frame's Generator candidates rendered by the
+current avatar (no grad) and turned into pseudo-GT by the shared augmentation step
+(``trioman.runtime.pseudo_gt.make_pseudo_frames``, the one ``trioman augment`` runs), which gives the
+frame its image, mask and per-pixel loss weights. Each step after the warm-up trains on a pool frame
+with probability ``share``, with loss weight ``weight``. The pool and this module's random state live in
+the checkpoints, so a resumed run equals an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -31,21 +21,24 @@ from typing import Any
 import numpy as np
 import torch
 
+from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.formats import Subject
-from trioman.runtime.generator import GeneratorConfig, keep_detail, sample
-from trioman.runtime.normal_map import body_normal_map
+from trioman.runtime.generator import GeneratorConfig, sample
+from trioman.runtime.pseudo_gt import KINDS, MASKS, STAGES, PseudoConfig, Source, make_pseudo_frames
 from trioman.toolkit.avatar.model import GaussianAvatar
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.data import FrameSet
 
-MODES = ("coarse", "refined", "examined")
-STAGES = ("generate", "render", "normal", "refine", "examine")
-_POOL_KEYS = ("images", "masks", "poses", "trans", "K", "viewmat")
+MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_gt.py)
+_POOL_KEYS = ("images", "masks", "pixel_weights", "poses", "trans", "K", "viewmat")
 
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    mode: str = "coarse"  # one of MODES
+    mode: str = "coarse"  # one of MODES; "truth" (synthetic subjects only) is the ceiling, for benchmarks
+    mask: str = "carried"  # pseudo frame mask: "carried" (body mesh + source mask carried to the draw) or "alpha" (render's)
+    unknown_weight: float = 0.0  # mode "aligned": loss weight of body pixels no real pixel reached
+    align_sources: int = 3  # training frames whose pixels the aligned reference fuses per draw
     refiner: str | None = None  # run folder, checkpoint or .onnx (modes refined, examined)
     examiner: str | None = None  # run folder, checkpoint or .onnx (mode examined)
     per_frame: int | None = None  # Generator candidates per source frame; None: 2 with an Examiner, else 1
@@ -64,14 +57,15 @@ class AugmentConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"augment: expected one of {MODES}, got {self.mode!r}")
-        if self.mode != "coarse" and not self.refiner:
+        needs_refiner = self.mode in ("refined", "examined")
+        if needs_refiner and not self.refiner:
             raise ValueError(f"refiner: --augment {self.mode} needs a Refiner (--refiner RUN|CKPT|ONNX)")
         if self.mode == "examined" and not self.examiner:
             raise ValueError("examiner: --augment examined needs an Examiner (--examiner RUN|CKPT|ONNX)")
         if self.mode != "examined" and self.examiner:
             raise ValueError(f"examiner: --augment {self.mode} does not use an Examiner (use --augment examined)")
-        if self.mode == "coarse" and self.refiner:
-            raise ValueError("refiner: --augment coarse does not use a Refiner (use --augment refined or examined)")
+        if not needs_refiner and self.refiner:
+            raise ValueError(f"refiner: --augment {self.mode} does not use a Refiner (use --augment refined or examined)")
         if self.per_frame is not None and (isinstance(self.per_frame, bool) or not isinstance(self.per_frame, int)
                                            or self.per_frame < 1):
             raise ValueError(f"per_frame: must be an integer >= 1, got {self.per_frame!r}")
@@ -91,8 +85,13 @@ class AugmentConfig:
             raise ValueError(f"augment_weight: must be a finite number >= 0, got {self.weight!r}")
         if not (isinstance(self.detail_sigma, (int, float)) and math.isfinite(self.detail_sigma) and self.detail_sigma >= 0):
             raise ValueError(f"augment_detail_sigma: must be a finite number >= 0 (pixels), got {self.detail_sigma!r}")
-        if self.detail_sigma > 0 and self.mode == "coarse":
+        if self.detail_sigma > 0 and not needs_refiner:
             raise ValueError("augment_detail_sigma: needs a Refiner (--augment refined or examined)")
+        if isinstance(self.align_sources, bool) or not isinstance(self.align_sources, int) or self.align_sources < 1:
+            raise ValueError(f"augment_align_sources: must be an integer >= 1, got {self.align_sources!r}")
+        if self.mask not in MASKS:
+            raise ValueError(f"augment_mask: expected one of {MASKS}, got {self.mask!r}")
+        self.pseudo()  # validates the mask and weights
         self.generator()  # validates the sigmas
 
     @property
@@ -105,12 +104,17 @@ class AugmentConfig:
             kw.update(azimuth_sigma=self.camera[0], elevation_sigma=self.camera[1], distance_sigma=self.camera[2])
         return GeneratorConfig(**kw)
 
+    def pseudo(self) -> PseudoConfig:
+        return PseudoConfig(kind=self.mode, mask=self.mask, unknown_weight=self.unknown_weight,
+                            detail_sigma=self.detail_sigma, threshold=self.threshold)
+
     def start_step(self, iterations: int) -> int:
         return int(round(self.start * iterations))
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "AugmentConfig":
         d = dict(d)
+        d.setdefault("mask", "alpha")  # runs recorded before the mask was a setting used the render's alpha
         if d.get("camera") is not None:
             d["camera"] = tuple(d["camera"])
         return cls(**d)
@@ -125,16 +129,28 @@ class Augmenter:
         self.cfg, self.subject, self.frames = cfg, subject, frames
         self.start = cfg.start_step(iterations)
         self.gen_cfg = cfg.generator()
-        self.refiner = load_pseudo_refiner(cfg.refiner) if cfg.mode != "coarse" else None
+        self.pseudo_cfg = cfg.pseudo()
+        self.refiner = load_pseudo_refiner(cfg.refiner) if cfg.refiner else None
         if self.refiner is not None:
             self.refiner.check_size(frames.height, frames.width, "--refiner")
         use_examiner = cfg.mode == "examined" and (cfg.candidates > 1 or cfg.threshold is not None)
         self.examiner = load_pseudo_examiner(cfg.examiner) if use_examiner else None
         self.rng = np.random.default_rng([int(seed), 0xA06])  # apart from the real-frame draws
         self.background = subject.background.astype(np.float32)
+        self.aligner = None
+        if self.pseudo_cfg.needs_aligner:
+            views = SourceViews(lambda p: frames.image(p).numpy(), lambda p: frames.mask(p).numpy(), frames.poses.numpy(),
+                                frames.trans.numpy(), frames.viewmat.numpy(), frames.K.numpy(), frames.width, frames.height)
+            self.aligner = Aligner(subject.body, views, AlignConfig(sources=cfg.align_sources))
+        self.truth = None
+        if cfg.mode == "truth":
+            from trioman.toolkit.synth.subject import TruthRenderer
+
+            self.truth = TruthRenderer(subject)
         self.pool: dict[str, torch.Tensor] | None = None
         self.stats: dict[str, Any] = {"rebuilds": 0, "pseudo_steps": 0, "candidates": 0, "kept": 0, "dropped": 0,
-                                      "score_sum": 0.0, "scored": 0, "seconds": dict.fromkeys(STAGES, 0.0)}
+                                      "score_sum": 0.0, "scored": 0, "coverage_sum": 0.0, "aligned": 0,
+                                      "seconds": dict.fromkeys(STAGES, 0.0)}
 
     # ---- schedule
 
@@ -150,7 +166,7 @@ class Augmenter:
         return take and self.pool is not None and len(self.pool["images"]) > 0
 
     def draw(self) -> dict[str, Any]:
-        """A pool frame: images/masks/poses/trans/K/viewmat of one entry and its loss weight."""
+        """A pool frame: images/masks/pixel_weights/poses/trans/K/viewmat of one entry and its loss weight."""
         j = int(self.rng.integers(len(self.pool["images"])))
         self.stats["pseudo_steps"] += 1
         return {**{k: v[j] for k, v in self.pool.items()}, "weight": self.cfg.weight}
@@ -165,7 +181,7 @@ class Augmenter:
             if entry is not None:
                 entries.append(entry)
         H, W = self.frames.height, self.frames.width
-        empty = {"images": (0, H, W, 3), "masks": (0, H, W), "poses": (0, *self.frames.poses.shape[1:]),
+        empty = {"images": (0, H, W, 3), "masks": (0, H, W), "pixel_weights": (0, H, W), "poses": (0, *self.frames.poses.shape[1:]),
                  "trans": (0, 3), "K": (0, 3, 3), "viewmat": (0, 4, 4)}
         self.pool = {k: torch.stack([e[k] for e in entries]) if entries else torch.zeros(empty[k]) for k in _POOL_KEYS}
         self.stats["rebuilds"] += 1
@@ -174,42 +190,33 @@ class Augmenter:
         t, sec = time.perf_counter(), self.stats["seconds"]
         f, bg = self.frames, self.background
         W, H = f.width, f.height
-        K, real_mask = f.K[i].numpy().astype(np.float64), f.mask(i).numpy()
+        real_mask = f.mask(i).numpy()
         real = f.image(i).numpy() + (1.0 - real_mask)[..., None] * bg  # I^T over the subject's background
         cands = sample(self.subject.body.skeleton, f.poses[i].numpy(), f.trans[i].numpy(), f.viewmat[i].numpy(),
                        self.rng, self.cfg.candidates, self.gen_cfg)
-        t = _tick(sec, "generate", t)
-        renders = [render_candidate(model, c, f.K[i], W, H, bg) for c in cands]
-        coarse_b, alpha_b = np.stack([r for r, _ in renders]), np.stack([a for _, a in renders])
-        t = _tick(sec, "render", t)
+        sec["generate"] += time.perf_counter() - t
+        source = Source(i, real.astype(np.float32), f.K[i].numpy(), bg)
+        index = int(f.indices[i]) if i < len(f.indices) else i
+        truth = None if self.truth is None else (lambda c, K: self.truth.at_draw(index, c, K))
+        made = make_pseudo_frames(cands, source, lambda c: render_candidate(model, c, f.K[i], W, H, bg), self.pseudo_cfg,
+                                  body=self.subject.body, aligner=self.aligner, refiner=self.refiner,
+                                  examiner=self.examiner, truth=truth, seconds=sec)
         self.stats["candidates"] += len(cands)
-        images = coarse_b
-        if self.refiner is not None:
-            normal = None
-            if self.refiner.conditions == "tex+geo":
-                normal = np.stack([body_normal_map(self.subject.body, c.pose, c.trans, c.viewmat, K, W, H).rgb
-                                   for c in cands]).astype(np.float32)
-            t = _tick(sec, "normal", t)
-            reference = None if self.refiner.conditions == "none" else np.broadcast_to(real, coarse_b.shape).astype(np.float32)
-            images = np.asarray(self.refiner.refine(coarse_b, reference=reference, normal=normal), dtype=np.float32)
-            if self.cfg.detail_sigma > 0:
-                images = keep_detail(coarse_b, images, self.cfg.detail_sigma)
-            t = _tick(sec, "refine", t)
-        k = 0
-        if self.examiner is not None:
-            scores = np.asarray(self.examiner.score(images, real.astype(np.float32)), dtype=np.float64)
-            k = int(np.argmax(scores))
-            self.stats["score_sum"] += float(scores[k])
+        self.stats["coverage_sum"] += float(sum(made.coverage))
+        self.stats["aligned"] += len(made.coverage)
+        if made.scores is not None:
+            self.stats["score_sum"] += made.scores[made.chosen]
             self.stats["scored"] += 1
-            t = _tick(sec, "examine", t)
-            if self.cfg.threshold is not None and scores[k] < self.cfg.threshold:
-                self.stats["dropped"] += 1
-                return None
+        if not made.kept:
+            self.stats["dropped"] += 1
+            return None
         self.stats["kept"] += 1
-        a = alpha_b[k]
-        premult = np.clip(images[k] - (1.0 - a)[..., None] * bg, 0.0, 1.0)  # colour on black, as FrameSet holds it
+        k = made.kept[0]
+        m = made.masks[k]
+        premult = np.clip(made.images[k] - (1.0 - m)[..., None] * bg, 0.0, 1.0)  # colour on black, as FrameSet holds it
         c = cands[k]
-        return {"images": torch.from_numpy(premult.astype(np.float32)), "masks": torch.from_numpy(a.astype(np.float32)),
+        return {"images": torch.from_numpy(premult.astype(np.float32)), "masks": torch.from_numpy(m),
+                "pixel_weights": torch.from_numpy(made.weights[k]),
                 "poses": torch.from_numpy(c.pose.astype(np.float32)), "trans": torch.from_numpy(c.trans.astype(np.float32)),
                 "K": f.K[i].clone(), "viewmat": torch.from_numpy(c.viewmat.astype(np.float32))}
 
@@ -223,6 +230,12 @@ class Augmenter:
         self.rng.bit_generator.state = json.loads(state["rng"])
         self.stats = json.loads(state["stats"])
         self.pool = None if state["pool"] is None else dict(state["pool"])
+        if self.pool is not None and "pixel_weights" not in self.pool:  # a checkpoint from before per-pixel weights
+            self.pool["pixel_weights"] = torch.ones_like(self.pool["masks"])
+        self.stats.setdefault("coverage_sum", 0.0)
+        self.stats.setdefault("aligned", 0)
+        for stage in STAGES:
+            self.stats["seconds"].setdefault(stage, 0.0)
 
     def summary(self, steps: int) -> dict[str, Any]:
         """Counts, mean kept score and seconds per stage (total and per training step)."""
@@ -230,6 +243,7 @@ class Augmenter:
         return {"mode": self.cfg.mode, "config": dataclasses.asdict(self.cfg), "start_step": self.start,
                 **{k: s[k] for k in ("rebuilds", "pseudo_steps", "candidates", "kept", "dropped")},
                 "mean_kept_score": s["score_sum"] / s["scored"] if s["scored"] else None,
+                "mean_body_coverage": s["coverage_sum"] / s["aligned"] if s["aligned"] else None,
                 "seconds": s["seconds"], "ms_per_step": {k: 1e3 * v / max(steps, 1) for k, v in s["seconds"].items()}}
 
 
@@ -243,8 +257,3 @@ def render_candidate(model: GaussianAvatar, c: Any, K: torch.Tensor, width: int,
                   K, width, height, background=torch.from_numpy(background))
     return r.rgb.clamp(0, 1).numpy(), r.alpha.clamp(0, 1).numpy()
 
-
-def _tick(seconds: dict[str, float], stage: str, t: float) -> float:
-    now = time.perf_counter()
-    seconds[stage] += now - t
-    return now

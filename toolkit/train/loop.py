@@ -16,7 +16,7 @@ from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.image_io import atomic_write_text, naming_os_errors, remove_temp_files
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
-from trioman.toolkit.metrics import psnr, ssim
+from trioman.toolkit.metrics import psnr, ssim, ssim_map
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
@@ -53,11 +53,17 @@ def param_groups(model: GaussianAvatar, cfg: TrainConfig) -> list[dict]:
     return groups
 
 
-def photometric(pred: torch.Tensor, gt: torch.Tensor, cfg: TrainConfig, lpips=None) -> torch.Tensor:
-    """pred, gt: [H, W, 3] -> L1 0.8 + (1 - SSIM) 0.2 (+ LPIPS 0.2)."""
+def photometric(pred: torch.Tensor, gt: torch.Tensor, cfg: TrainConfig, lpips=None,
+                pixel_weights: torch.Tensor | None = None) -> torch.Tensor:
+    """pred, gt: [H, W, 3] -> L1 0.8 + (1 - SSIM) 0.2 (+ LPIPS 0.2). pixel_weights [H, W] in [0, 1] weight the
+    per-pixel L1 and SSIM terms (a pseudo frame supervised only where it is known); None: 1 everywhere."""
     p, g = pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
     w = cfg.weights
-    loss = w.l1 * (pred - gt).abs().mean() + w.ssim * (1 - ssim(p, g)).mean()
+    if pixel_weights is None:
+        loss = w.l1 * (pred - gt).abs().mean() + w.ssim * (1 - ssim(p, g)).mean()
+    else:
+        pw = pixel_weights[..., None]
+        loss = w.l1 * (pw * (pred - gt).abs()).mean() + w.ssim * (pw.permute(2, 0, 1)[None] * (1 - ssim_map(p, g))).mean()
     if lpips is not None:
         loss = loss + w.lpips * lpips(p, g).mean()
     return loss
@@ -218,7 +224,7 @@ def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict,
     for g in sets:
         img = render(g, sample["viewmat"], sample["K"], width, height, bg)
         pred = img if pred is None else pred
-        loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips)
+        loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips, sample.get("pixel_weights"))
     loss = loss + regularisers(model, out, cfg)
     hint = f"(learning rate {learning_rate(cfg, step):.3g}; the last checkpoint is intact)"
     optimizer.zero_grad(set_to_none=True)

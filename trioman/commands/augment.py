@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", choices=("train", "all"), default="train",
                         help="source frames: the train split or all frames (default train)")
     parser.add_argument("--limit", type=int, default=None, help="use only the first N source frames (quick runs)")
+    parser.add_argument("--mask", choices=("carried", "alpha"), default="carried",
+                        help="the pseudo frames' mask: the body mesh plus the source frame's mask carried to the draw "
+                             "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: its own)")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")
@@ -48,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     shard = None if args.shard is None else Shard.parse(args.shard)
     r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
                 threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
-                overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard, merge=args.merge)
+                overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard, merge=args.merge,
+                mask=args.mask)
     if shard is not None:
         print(f"augment: shard {shard} done ({len(r['items'])} source frames in {Path(args.out) / 'shards' / shard.name}); "
               f"assemble with --merge when every shard is done")

@@ -17,10 +17,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--extra-weight", type=float, default=None,
                         help="loss weight of the --extra-frames frames (default 1)")
     aug = parser.add_argument_group("online augmentation (Generator -> Refiner -> Examiner during training)")
-    aug.add_argument("--augment", choices=("coarse", "refined", "examined"), default=None,
+    aug.add_argument("--augment", choices=("coarse", "aligned", "refined", "examined", "truth"), default=None,
                      help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
-                          "cameras (coarse), refined by --refiner (refined), the best of --per-frame refined candidates "
-                          "by --examiner (examined)")
+                          "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
+                          "refined by --refiner (refined), the best of --per-frame refined candidates by --examiner "
+                          "(examined), or the subject's own renderer (truth: synthetic subjects only, the ceiling)")
     aug.add_argument("--refiner", default=None, metavar="RUN|CKPT|ONNX", help="Refiner: train-refiner run, checkpoint or .onnx")
     aug.add_argument("--examiner", default=None, metavar="RUN|CKPT|ONNX", help="Examiner: train-examiner run, checkpoint or .onnx")
     aug.add_argument("--per-frame", type=int, default=None, help="Generator candidates per source frame (default 2 with an Examiner, else 1)")
@@ -33,6 +34,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     aug.add_argument("--augment-detail-sigma", type=float, default=None, metavar="PX",
                      help="keep only the Refiner's detail: its change minus that change blurred by PX pixels, so the "
                           "avatar does not learn the Refiner's colour shift (default 0: the refined frame as it is)")
+    aug.add_argument("--augment-mask", choices=("carried", "alpha"), default=None,
+                     help="a pseudo frame's mask: the body mesh plus the source frame's mask carried to the draw "
+                          "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
+    aug.add_argument("--augment-unknown-weight", type=float, default=None,
+                     help="--augment aligned: loss weight of body pixels no real pixel reached (default 0)")
+    aug.add_argument("--augment-sources", type=int, default=None,
+                     help="training frames the aligned reference fuses per draw (default 3)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its latest checkpoint (same subject, options and trioman "
                              "version as the run, else refused naming what differs)")
@@ -75,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
 
 _AUGMENT_FLAGS = {"refiner": "refiner", "examiner": "examiner", "per_frame": "per_frame", "threshold": "threshold",
                   "augment_start": "start", "augment_refresh": "refresh", "augment_pool": "pool",
-                  "augment_share": "share", "augment_weight": "weight", "augment_detail_sigma": "detail_sigma"}
+                  "augment_share": "share", "augment_weight": "weight", "augment_detail_sigma": "detail_sigma",
+                  "augment_mask": "mask", "augment_unknown_weight": "unknown_weight", "augment_sources": "align_sources"}
 
 
 def augment_config(args: argparse.Namespace):
@@ -87,7 +96,7 @@ def augment_config(args: argparse.Namespace):
     flags = [flag for flag in _AUGMENT_FLAGS if getattr(args, flag) is not None]
     if args.augment is None:
         if flags:
-            raise ValueError(f"--{flags[0].replace('_', '-')}: needs --augment coarse|refined|examined")
+            raise ValueError(f"--{flags[0].replace('_', '-')}: needs --augment coarse|aligned|refined|examined|truth")
         return None
     given = {_AUGMENT_FLAGS[flag]: getattr(args, flag) for flag in flags}
     for key in ("refiner", "examiner"):

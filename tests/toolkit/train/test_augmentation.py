@@ -51,12 +51,12 @@ def losses(run) -> np.ndarray:
 
 
 def augment_cfg(mode: str, models, **kw) -> AugmentConfig:
-    paths = {"coarse": {}, "refined": {"refiner": str(models["refiner"])},
+    paths = {"coarse": {}, "aligned": {}, "truth": {}, "refined": {"refiner": str(models["refiner"])},
              "examined": {"refiner": str(models["refiner"]), "examiner": str(models["examiner"])}}[mode]
     return AugmentConfig(mode=mode, start=0.25, refresh=10, pool=2, **paths, **kw)
 
 
-@pytest.mark.parametrize("mode", ["coarse", "refined", "examined"])
+@pytest.mark.parametrize("mode", ["coarse", "aligned", "truth", "refined", "examined"])
 def test_each_mode_trains_on_pseudo_frames_and_lowers_the_loss(subject, models, tmp_path, mode):
     cfg = TrainConfig(iterations=40, lr=1e-2, random_background=False, checkpoint_every=40, avatar=TINY_AVATAR,
                       augment=augment_cfg(mode, models))
@@ -70,8 +70,10 @@ def test_each_mode_trains_on_pseudo_frames_and_lowers_the_loss(subject, models, 
     assert summary["candidates"] == 6 * (2 if mode == "examined" else 1)
     # What a mode does not need is never run.
     used = {k for k, v in summary["seconds"].items() if v > 0}
-    assert used == {"coarse": {"generate", "render"}, "refined": {"generate", "render", "normal", "refine"},
-                    "examined": {"generate", "render", "normal", "refine", "examine"}}[mode]
+    assert used == {"coarse": {"generate", "render", "align"}, "aligned": {"generate", "render", "align"},
+                    "truth": {"generate", "render", "align"}, "refined": {"generate", "render", "align", "normal", "refine"},
+                    "examined": {"generate", "render", "align", "normal", "refine", "examine"}}[mode]
+    assert 0.3 < summary["mean_body_coverage"] <= 1.0  # the carried mask aligns every draw
     saved = json.loads((run / "config.json").read_text())
     assert TrainConfig.from_dict(saved["train"]) == cfg
 
@@ -129,6 +131,16 @@ def test_config_errors_name_the_option():
         AugmentConfig(detail_sigma=2.0)
 
 
+class _ShiftingRefiner:
+    """A Refiner that brightens every pixel by 0.2 and adds a fixed fine pattern (detail)."""
+
+    conditions = "none"
+
+    def refine(self, coarse, reference=None, normal=None):
+        pattern = 0.05 * (np.indices(coarse.shape[1:3]).sum(0) % 2)[None, ..., None]
+        return np.clip(coarse + 0.2 + pattern, 0, 1)
+
+
 def test_detail_only_pseudo_frames_keep_the_coarse_colours(subject, models):
     from trioman.runtime.formats import load_subject
     from trioman.toolkit.avatar.model import GaussianAvatar
@@ -143,6 +155,8 @@ def test_detail_only_pseudo_frames_keep_the_coarse_colours(subject, models):
                      ("detail", {"refiner": str(models["refiner"]), "detail_sigma": 1e3})):
         aug = Augmenter(AugmentConfig(mode="coarse" if name == "coarse" else "refined", pool=3, start=0.0, **kw),
                         subj, frames, 1, seed=0)  # one seed: the same draws in every pool
+        if name != "coarse":
+            aug.refiner = _ShiftingRefiner()
         aug.rebuild(model)
         pools[name] = aug.pool["images"].numpy()
     shift = {k: np.abs(pools[k].mean((1, 2)) - pools["coarse"].mean((1, 2))).max() for k in ("refined", "detail")}
