@@ -53,9 +53,12 @@ def load_run(run: str | Path, checkpoint: str | Path | None = None) -> tuple[Gau
 
 
 @torch.no_grad()
-def render_frame(model: GaussianAvatar, subject: Subject, i: int, background: torch.Tensor = WHITE) -> np.ndarray:
-    """The avatar (refined set) at frame i's pose and camera, full resolution. -> [H, W, 3] float32."""
-    out = model(torch.from_numpy(np.array(subject.poses[i])), torch.from_numpy(np.array(subject.trans[i])))
+def render_frame(model: GaussianAvatar, subject: Subject, i: int, background: torch.Tensor = WHITE,
+                 true_pose: bool = False) -> np.ndarray:
+    """The avatar (refined set) at frame i's pose (``true_pose``: the recorded ground truth, poses_true) and
+    camera, full resolution. -> [H, W, 3] float32."""
+    poses = subject.poses if not true_pose else subject.poses_true
+    out = model(torch.from_numpy(np.array(poses[i])), torch.from_numpy(np.array(subject.trans[i])))
     img = render(out.refined, torch.from_numpy(np.array(subject.viewmat[i])), torch.from_numpy(np.array(subject.K[i])),
                  subject.width, subject.height, background)
     return img.clamp(0, 1).numpy()
@@ -70,13 +73,20 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
 
 @flush_denormals()
 def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
-             progress: bool = True, grid_frames: int = 6, video: bool = True, protocol: str = "ours") -> dict:
+             progress: bool = True, grid_frames: int = 6, video: bool = True, protocol: str = "ours",
+             poses: str = "stored") -> dict:
     """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary.
 
-    ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours."""
+    ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours. ``poses="true"`` renders at
+    the subject's recorded ground-truth poses (synthetic subjects with --pose-noise), so the metric measures the
+    avatar and not the noise of the stored test poses."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol: expected one of {list(PROTOCOLS)}, got {protocol!r}")
+    if poses not in ("stored", "true"):
+        raise ValueError(f"poses: expected 'stored' or 'true', got {poses!r}")
     model, subject, cfg, step = load_run(run)
+    if poses == "true" and subject.poses_true is None:
+        raise ValueError(f"poses: {subject.root} records no ground-truth poses (poses_true); evaluate at the stored poses")
     out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)
     idx = subject.indices(split)
@@ -85,7 +95,7 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
     rows, triplets = [], []
     picks = set(idx[np.linspace(0, len(idx) - 1, min(grid_frames, len(idx))).astype(int)].tolist())
     for i in tqdm(idx, desc=f"eval {split}", unit="frame", disable=None if progress else True):
-        pred = render_frame(model, subject, int(i))
+        pred = render_frame(model, subject, int(i), true_pose=poses == "true")
         mask = subject.mask(int(i))
         gt = subject.image(int(i)) + (1 - mask)[..., None]  # premultiplied GT over white
         m = evaluate_pair(pred, gt, mask, lpips=lpips)
@@ -97,7 +107,7 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
         triplets.append((gt, pred))
         if int(i) in picks:
             triplets[-1] = (gt, pred, error_map(pred, gt))
-    summary = _summarise(rows, split, step, cfg, lpips is not None, protocol)
+    summary = {**_summarise(rows, split, step, cfg, lpips is not None, protocol), "poses": poses}
     _write_reports(out, rows, summary)
     grid = [im for t in triplets if len(t) == 3 for im in t]
     labels = [f"{name} {r['frame']}" for r, t in zip(rows, triplets) if len(t) == 3 for name in ("GT", "render", "error x4")]

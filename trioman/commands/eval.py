@@ -13,6 +13,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", default="ours", choices=("ours", "exavatar"),
                         help="exavatar: also ExAvatar's numbers (composited over white outside the GT mask, full image, "
                              "PSNR/SSIM data range 1, LPIPS-AlexNet, mean over frames)")
+    parser.add_argument("--poses", default="stored", choices=("stored", "true"),
+                        help="render at the subject's stored poses (default) or at its recorded ground-truth poses "
+                             "(synthetic subjects made with --pose-noise: measures the avatar, not the pose noise)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -24,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path(args.run) / f"eval_{args.split}"
     summary = evaluate(args.run, args.split, out, lpips=load_lpips_or_say_why("eval"), progress=not args.quiet,
-                       video=not args.no_video, protocol=args.protocol)
+                       video=not args.no_video, protocol=args.protocol, poses=args.poses)
     m = summary["mean"]
     print(f"eval: {summary['frames']} {args.split} frames at step {summary['step']}: PSNR {m['psnr']:.2f} dB, "
           f"SSIM {m['ssim']:.4f} (masked protocol); unmasked PSNR {m['psnr_unmasked']:.2f} dB")

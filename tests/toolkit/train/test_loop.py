@@ -305,3 +305,18 @@ def test_non_finite_steps_are_skipped_counted_and_stop_the_run(subject, tmp_path
     assert not list_checkpoints(tmp_path / "h")  # no checkpoint of a broken run
     with pytest.raises(ValueError, match="max_skipped: must be a positive integer, got 0"):
         TrainConfig(max_skipped=0)
+
+
+def test_evaluate_at_the_true_poses(subject, tmp_path):
+    """poses="true" renders at poses_true: the same as the stored poses on a noise-free subject, not on a noisy one."""
+    noisy = tmp_path / "noisy"
+    synthesize_subject(SynthConfig(seed=5, size=32, frames=10, texture_size=256, pose_noise_deg=8.0), noisy, progress=False)
+    cfg = TrainConfig(iterations=3, checkpoint_every=3, avatar=TINY_AVATAR)
+    for subj, same in ((subject, True), (noisy, False)):
+        run = train(subj, tmp_path / f"run_{same}", cfg, progress=False)
+        stored = evaluate(run, "test", tmp_path / f"stored_{same}", progress=False, video=False)
+        true = evaluate(run, "test", tmp_path / f"true_{same}", progress=False, video=False, poses="true")
+        assert (stored["poses"], true["poses"]) == ("stored", "true")
+        assert (stored["mean"]["psnr"] == true["mean"]["psnr"]) == same
+    with pytest.raises(ValueError, match="poses: expected"):
+        evaluate(run, "test", progress=False, poses="fitted")
