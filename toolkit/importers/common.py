@@ -1,4 +1,5 @@
-"""What every importer shares: strict readers (JSON, pickles behind a flag, images, masks, COLMAP text),
+"""What every importer shares: the output check made before anything is read, strict readers (JSON through
+``formats.common.read_json``, pickles behind a flag, .npy/.npz without pickle, images, masks, COLMAP text),
 SMPL-X parameter checks, and the one writer that turns checked frames into a subject folder.
 
 Every problem is a one-line ``FormatError`` naming the file and the field. Everything is read and
@@ -9,7 +10,6 @@ sibling folder renamed into place), so bad input leaves nothing behind.
 from __future__ import annotations
 
 import itertools
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,9 +18,13 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from trioman.runtime.formats import FormatError, Subject, save_subject
-from trioman.runtime.image_io import read_png
+from trioman.runtime.formats.common import read_json  # noqa: F401  (the one JSON reader; the importers take it from here)
+from trioman.runtime.formats.subject import SUBJECT_FOLDER
+from trioman.runtime.image_io import check_folder_target, read_png
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
-from trioman.toolkit.body.smplx_model import SMPLXBody, Y_UP_TO_Z_UP, full_pose, viewmat_to_z_up
+from trioman.toolkit.body.smplx_model import (
+    SMPLXBody, Y_UP_TO_Z_UP, full_pose, load_model_arrays, model_file, viewmat_to_z_up,
+)
 
 # SMPL-X parameters of one frame: name -> shape (axis-angle in SMPL-X's frame, hands relative to their mean).
 PARAM_SHAPES = {"root": (3,), "body": (21, 3), "jaw": (3,), "leye": (3,), "reye": (3,), "lhand": (15, 3),
@@ -50,20 +54,6 @@ class FrameRecord:
 # readers
 
 
-def read_json(path: Path) -> Any:
-    """A JSON file (NaN and Infinity refused). Missing or malformed -> FormatError naming the file."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
-
-    def reject(name: str) -> Any:
-        raise ValueError(f"{name} is not valid JSON")
-
-    try:
-        return json.loads(path.read_text(encoding="utf-8"), parse_constant=reject)
-    except (ValueError, UnicodeDecodeError) as err:
-        raise FormatError(f"{path}: malformed JSON: {err}") from None
-
-
 def read_pickle(path: Path, allow_pickle: bool) -> Any:
     """A pickled file (X-Humans' original fits), only with ``allow_pickle``: unpickling runs code."""
     if not path.is_file():
@@ -78,6 +68,31 @@ def read_pickle(path: Path, allow_pickle: bool) -> Any:
             return pickle.load(f, encoding="latin1")
     except Exception as err:  # any unpickling failure means the file is unusable
         raise FormatError(f"{path}: unreadable pickle ({type(err).__name__}: {err})") from None
+
+
+def check_target(out: str | Path, overwrite: bool, inputs: list[Path]) -> None:
+    """Before anything is read: ``out`` may take a subject folder (``image_io.check_folder_target``: empty, absent,
+    or with ``overwrite`` a subject folder holding nothing else) and is not, does not hold and does not lie inside
+    one of ``inputs`` (the capture, the frames, fits and masks folders)."""
+    check_folder_target(Path(out), overwrite, SUBJECT_FOLDER, inputs=inputs)
+
+
+def read_npy(path: Path) -> np.ndarray:
+    """One array of a .npy file, without pickle."""
+    if not path.is_file():
+        raise FormatError(f"{path}: missing file")
+    try:
+        return np.load(path, allow_pickle=False)
+    except Exception as err:  # numpy raises several types; all mean unreadable
+        raise FormatError(f"{path}: unreadable .npy without pickle ({type(err).__name__}: {err})") from None
+
+
+def pelvis_per_beta(model_dir: str | Path, gender: str, num_betas: int) -> np.ndarray:
+    """[3, num_betas]: how the rest pelvis (SMPL-X frame) moves per shape coefficient (it is linear in the betas).
+    A fit made for betas b keeps its pelvis where b put it under the betas m when its transl gains
+    ``pelvis_per_beta @ (b - m)`` (the posed pelvis is the rest pelvis + transl, whatever the pose)."""
+    model = load_model_arrays(model_file(model_dir, gender))
+    return np.einsum("v,vck->ck", model["J_regressor"][0], model["shapedirs"][:, :, :num_betas])
 
 
 def read_npz(path: Path) -> dict[str, np.ndarray]:
@@ -325,12 +340,14 @@ def upright(records: list[FrameRecord], rest_joints: np.ndarray, up: str,
 
 
 def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], generator: dict[str, Any],
-                  overwrite: bool = False, up: str = "body", say: Callable[[str], None] = print) -> Subject:
+                  overwrite: bool = False, up: str = "body", say: Callable[[str], None] = print,
+                  inputs: tuple[Path, ...] = ()) -> Subject:
     """Check the frames against each other and write the subject (images premultiplied by their mask, on black).
 
     Poses are SMPL-X full poses and everything is moved to TrioMan's z-up world (docs/formats.md), turned so
     the person stands along +z (``upright``); subject.json's ``capture_to_world`` records the rotation from the
-    capture's world (cameras' and fits' frame) to the subject's."""
+    capture's world (cameras' and fits' frame) to the subject's. ``inputs``: the folders read, which ``out`` may
+    not be, hold or lie inside."""
     if not records:
         raise FormatError(f"{out}: no frames to import")
     splits = {r.split for r in records}
@@ -371,4 +388,5 @@ def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], genera
         K=K.astype(np.float32), viewmat=viewmat_to_z_up(view).astype(np.float32), split=[r.split for r in records],
         sequence=[r.sequence for r in records], images=(f[0] for f in a), masks=(f[1] for f in b), width=W, height=H,
         body_model="smplx", background=(0.0, 0.0, 0.0), generator=generator,
-        frame_names=[r.name for r in records], overwrite=overwrite, capture_to_world=Y_UP_TO_Z_UP @ U)
+        frame_names=[r.name for r in records], overwrite=overwrite, inputs=inputs,
+        capture_to_world=Y_UP_TO_Z_UP @ U)

@@ -18,9 +18,10 @@ from typing import Callable
 import numpy as np
 
 from trioman.runtime.formats import FormatError, Subject
-from trioman.toolkit.body.smplx_model import SMPLXBody, load_model_arrays, model_file
+from trioman.toolkit.body.smplx_model import SMPLXBody
 from trioman.toolkit.importers.common import (
-    FrameRecord, array, images_by_index, read_gray, read_json, read_npz, smplx_params, write_subject,
+    FrameRecord, array, check_target, images_by_index, pelvis_per_beta, read_gray, read_json, read_npz, smplx_params,
+    write_subject,
 )
 
 SMPLERX_KEYS = {"root": "global_orient", "body": "body_pose", "jaw": "jaw_pose", "leye": "leye_pose",
@@ -62,6 +63,8 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
     masks_dir = Path(masks_dir) if masks_dir is not None else frames_dir.parent / "masks"
     if test_every < 0:
         raise ValueError(f"--test-every: must be >= 0, got {test_every}")
+    inputs = (frames_dir, fits_dir, masks_dir)
+    check_target(out, overwrite, list(inputs))
     images = images_by_index(frames_dir, "frames")
     masks = images_by_index(masks_dir, "masks (pass --masks DIR: one PNG per frame, 255 = person)")
     fits, crowded = _fit_files(fits_dir)
@@ -105,11 +108,10 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
     body = SMPLXBody(model_dir, gender=gender, num_betas=len(mean_betas), flat_hand_mean=flat_hand_mean, betas=mean_betas)
     # One shape for all frames: keep each frame's pelvis where its own betas put it (the posed pelvis is the rest
     # pelvis + transl, and the rest pelvis is linear in the betas), so only the limbs change with the mean shape.
-    model = load_model_arrays(model_file(model_dir, gender))
-    pelvis_per_beta = np.einsum("v,vck->ck", model["J_regressor"][0], model["shapedirs"][:, :, : len(mean_betas)])
+    shift = pelvis_per_beta(model_dir, gender, len(mean_betas))
     for r, b in zip(records, betas):
-        r.params["transl"] = r.params["transl"] + pelvis_per_beta @ (b - mean_betas)
+        r.params["transl"] = r.params["transl"] + shift @ (b - mean_betas)
     say("import: expression coefficients are ignored: a subject carries no per-frame vertex offsets")
     generator = {"tool": "trioman import smplx-fits", "frames": str(frames_dir.resolve()), "fits": str(fits_dir.resolve()),
                  "gender": gender, "num_betas": len(mean_betas), "flat_hand_mean": flat_hand_mean, "test_every": test_every}
-    return write_subject(Path(out), body, records, generator, overwrite=overwrite, up=up, say=say)
+    return write_subject(Path(out), body, records, generator, overwrite=overwrite, up=up, say=say, inputs=inputs)

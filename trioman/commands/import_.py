@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
-def _body_arguments(parser: argparse.ArgumentParser, gender: str, num_betas: bool) -> None:
+def _body_arguments(parser: argparse.ArgumentParser, gender: str | None, num_betas: bool) -> None:
     parser.add_argument("--body-model-dir", required=True, metavar="DIR",
                         help="folder holding SMPLX_{NEUTRAL,MALE,FEMALE}.npz (licensed: https://smpl-x.is.tue.mpg.de)")
     parser.add_argument("--gender", default=gender, choices=("neutral", "male", "female"),
-                        help=f"SMPL-X model (default {gender})")
+                        help=f"SMPL-X model (default {gender})" if gender else
+                        "SMPL-X model (default: the fits' own: male, ExAvatar's; X-Humans' own fits: its gender.txt)")
     if num_betas:
-        parser.add_argument("--num-betas", type=int, default=100, help="shape coefficients (default 100, ExAvatar's)")
+        parser.add_argument("--num-betas", type=int, default=None,
+                            help="shape coefficients (default: the fits' own: 100, ExAvatar's; X-Humans' own fits: "
+                                 "its mean shape's 10)")
     parser.add_argument("--flat-hand-mean", action="store_true",
                         help="hand poses are absolute (default: relative to SMPL-X's hand mean, as smplx and ExAvatar use)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing subject folder at --out")
@@ -29,7 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ex.add_argument("--out", required=True, help="subject folder to write")
     ex.add_argument("--allow-pickle", action="store_true",
                     help="read pickled files (X-Humans' SMPLX/*.pkl fits); unpickling runs code, use only on files you trust")
-    _body_arguments(ex, "male", num_betas=True)
+    ex.add_argument("--fits", default="auto", choices=("auto", "exavatar", "xhumans"),
+                    help="X-Humans: the fits to pose the body with: ExAvatar's fitting output of each take "
+                         "(TAKE/smplx_optimized/smplx_params/, with its identity; 'exavatar' leaves out takes without "
+                         "it), X-Humans' own SMPLX/*.pkl on X-Humans' own body (gender.txt, mean_shape_smplx.npy), or "
+                         "auto (default): ExAvatar's when every take holds them, else X-Humans' own")
+    _body_arguments(ex, None, num_betas=True)
     fits = sub.add_parser("smplx-fits", help="a video fitted with SMPL-X per frame (SMPLer-X's npz + meta json)")
     fits.add_argument("frames", help="folder of the video's frames (N.png or N.jpg)")
     fits.add_argument("fits", help="the fitter's output folder (smplx/FRAME_PERSON.npz and meta/FRAME_PERSON.json)")
@@ -39,13 +48,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _body_arguments(fits, "neutral", num_betas=False)
 
 
+def _inputs(args: argparse.Namespace) -> list[Path]:
+    """The folders an import reads: the capture; the frames, fits and masks folders."""
+    if args.source == "exavatar":
+        return [Path(args.root) / args.subject if args.subject else Path(args.root)]
+    return [Path(args.frames), Path(args.fits), Path(args.masks) if args.masks else Path(args.frames).parent / "masks"]
+
+
 def run(args: argparse.Namespace) -> int:
+    from trioman.runtime.formats.subject import SUBJECT_FOLDER
+    from trioman.runtime.image_io import check_folder_target
+
+    # before anything is read or the body-model stack imported: --out may not replace a foreign folder, nor be,
+    # hold or lie inside the capture (docs/design.md, "What a command may delete, and what it may read")
+    check_folder_target(Path(args.out), args.overwrite, SUBJECT_FOLDER, inputs=_inputs(args))
     if args.source == "exavatar":
         from trioman.toolkit.importers.exavatar import BodyConfig, import_exavatar
 
         body = BodyConfig(args.body_model_dir, args.gender, args.num_betas, args.flat_hand_mean)
         subject = import_exavatar(args.root, args.dataset, args.out, body, subject=args.subject,
-                                  allow_pickle=args.allow_pickle, overwrite=args.overwrite, up=args.up)
+                                  allow_pickle=args.allow_pickle, overwrite=args.overwrite, up=args.up,
+                                  fits=args.fits)
     else:
         from trioman.toolkit.importers.smplx_fits import import_smplx_fits
 

@@ -1,7 +1,9 @@
 """Tiny captures laid out as the upstream code writes them, for the importer tests.
 
-Upstream revisions read: ExAvatar_RELEASE d452687 (its ``fitting/`` and ``avatar/data/*``), ml-neuman 0149d25
-(the NeuMan preprocessing and readers). Each writer names, in a comment, the upstream file and line whose
+Upstream revisions read: ExAvatar_RELEASE d452687 (its ``fitting/`` and ``avatar/data/*``) and its X-Humans branch
+4afd138 (the avatar code for X-Humans: ``data/XHumans/XHumans.py``, ``main/config.py``), ml-neuman 0149d25 (the NeuMan
+preprocessing and readers), X-Avatar 7a071b6 (X-Humans' release: ``data_process/README.md``,
+``code/lib/dataset/XHumans_rgbd.py``). Each writer names, in a comment, the upstream file and line whose
 output it reproduces; nothing here is upstream code.
 
 64 x 64 frames: a coloured disc (the person) on a grey background. The person stands in the capture's world
@@ -43,6 +45,7 @@ class Scene:
     face_offset: np.ndarray | None = None  # [10475, 3] SMPL-X frame
     joint_offset: np.ndarray | None = None  # [55, 3]
     frames: list[dict] = field(default_factory=list)  # {"name", "split", "params", "R", "t", "in_camera", "focal", "princpt"}
+    by_source: dict[str, "Scene"] = field(default_factory=dict)  # X-Humans: the scene of each fit source written
 
 
 def rest_pelvis(model_dir: Path, betas: np.ndarray, face_offset: np.ndarray | None = None,
@@ -263,41 +266,84 @@ def write_custom(root: Path, model_dir: Path, seed: int = 2, colmap: bool = Fals
     return scene
 
 
-def write_xhumans(root: Path, model_dir: Path, seed: int = 0) -> Scene:
-    """ROOT/00028/{train/Take1, train/Take2, test/Take9} with 2 frames each; fits as X-Humans' pickles, in a
-    y-up world (read as ExAvatar_RELEASE fitting/data/XHumans/XHumans.py lines 44-105 read them)."""
+def _exavatar_take_fits(take: Path, scene: Scene) -> None:
+    """ExAvatar's fitting output of one X-Humans take, where fitting/tools/run.py line 92 moves it (output/result/
+    SUBJECT/* into the --root_path, here the take): smplx_optimized/shape_param.json, face_offset.json,
+    joint_offset.json, locator_offset.json (fitting/main/fit.py lines 178-193), copied from the subject's identity;
+    the per-frame fits are written by the caller."""
+    opt = take / "smplx_optimized"
+    _json(opt / "shape_param.json", scene.betas.tolist())
+    _json(opt / "face_offset.json", scene.face_offset.tolist())
+    _json(opt / "joint_offset.json", scene.joint_offset.tolist())
+    _json(opt / "locator_offset.json", np.zeros((55, 3)).tolist())
+
+
+def write_xhumans(root: Path, model_dir: Path, seed: int = 0, exavatar_takes: tuple[str, ...] = (),
+                  gender: str = "male") -> Scene:
+    """ROOT/00028 as X-Avatar releases X-Humans (data_process/README.md lines 33-55): gender.txt and
+    mean_shape_smplx.npy (10 betas) under the subject; {train/Take1, train/Take2, test/Take9} with 2 frames each:
+    render/image/color_%06d.png, render/depth/depth_%06d.tiff, render/cameras.npz, SMPLX/mesh-f%05d_smplx.pkl (world
+    frame, y up, fitted to X-Humans' own body: ``gender``, per-frame betas equal to the mean shape).
+
+    Beside it, ExAvatar's identity under the subject (smplx_optimized/, male, 100 betas, face and joint offsets), as
+    its X-Humans branch reads it with X-Humans' own fits (data/XHumans/XHumans.py lines 57-65 and 85-94,
+    main/config.py line 30): a body those fits were not made for. The takes in ``exavatar_takes`` also hold ExAvatar's
+    fitting output (``_exavatar_take_fits``; smplx_optimized/smplx_params/N.json, fit.py line 168, N the number of
+    color_N.png as fitting/data/XHumans/XHumans.py line 46 parses it), in the camera frame of each image's camera
+    (XHumans.py lines 104-111 turn the root into it; lines 119-136 place the translation in it), for the same person
+    in the same place.
+
+    Returns the scene of the fits a plain import reads: ExAvatar's when every take holds them, else X-Humans';
+    ``by_source`` holds both (ExAvatar's with the fitted takes' frames only)."""
     rng = np.random.default_rng(seed)
     subj = root / "00028"
-    scene = _exavatar_identity(subj, rng, model_dir, offsets=False)
-    j0 = _pelvis(model_dir, scene)
+    exavatar = _exavatar_identity(subj, rng, model_dir)  # subject-level: ExAvatar's X-Humans branch layout
+    mean_shape = rng.normal(scale=0.5, size=10)
+    xhumans = Scene(betas=mean_shape, gender=gender)
+    subj.mkdir(parents=True, exist_ok=True)
+    # X-Avatar code/lib/dataset/XHumans_rgbd.py lines 52-53: np.load('mean_shape_smplx.npy'), gender.txt's first line
+    (subj / "gender.txt").write_text(gender)
+    np.save(subj / "mean_shape_smplx.npy", mean_shape)
+    j0_xh, j0_ex = _pelvis(model_dir, xhumans), _pelvis(model_dir, exavatar)
     intr = np.array([[FOCAL[0], 0, PRINCPT[0]], [0, FOCAL[1], PRINCPT[1]], [0, 0, 1]])
     for split, take in (("train", "Take1"), ("train", "Take2"), ("test", "Take9")):
         d = subj / split / take
+        if take in exavatar_takes:
+            _exavatar_take_fits(d, exavatar)
         extr = []
         for idx in (1, 2):
             pelvis = np.array([0.0, 0.9, 0.0]) + rng.normal(scale=0.2, size=3)
-            R, t = _look_at(rng, pelvis, scene.up)
+            R, t = _look_at(rng, pelvis, xhumans.up)
             E = np.eye(4)
             E[:3, :3], E[:3, 3] = R, t
             extr.append(E)
-            p = _fit(rng, _standing_root(rng, scene.up), pelvis, R, t, j0, in_camera=False)
+            root_world = _standing_root(rng, xhumans.up)
+            p = _fit(rng, root_world, pelvis, R, t, j0_xh, in_camera=False)
             img, mask = _image_and_mask(rng)
             _png(d / "render" / "image" / f"color_{idx:06d}.png", img)
             depth = np.where(mask > 0, 2.5, 8.0).astype(np.float32)
             (d / "render" / "depth").mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(d / "render" / "depth" / f"depth_{idx:06d}.tiff"), depth)
+            # X-Avatar data_process/README.md lines 53-54: the keys and sizes of mesh-fxxxxx_smplx.pkl
             fit = {"global_orient": np.array(p["root_pose"]), "body_pose": np.array(p["body_pose"]).reshape(63),
                    "left_hand_pose": np.array(p["lhand_pose"]).reshape(45),
                    "right_hand_pose": np.array(p["rhand_pose"]).reshape(45), "jaw_pose": np.array(p["jaw_pose"]),
                    "leye_pose": np.array(p["leye_pose"]), "reye_pose": np.array(p["reye_pose"]),
-                   "transl": np.array(p["trans"]), "betas": np.zeros(10), "expression": np.zeros(10)}
+                   "transl": np.array(p["trans"]), "betas": mean_shape.copy(), "expression": np.zeros(10)}
             (d / "SMPLX").mkdir(parents=True, exist_ok=True)
             with open(d / "SMPLX" / f"mesh-f{idx:05d}_smplx.pkl", "wb") as f:
                 pickle.dump(fit, f)
-            scene.frames.append({"name": f"{take}_{idx:06d}", "split": split, "params": p, "R": R, "t": t,
-                                 "in_camera": False, "focal": FOCAL, "princpt": PRINCPT})
+            frame = {"name": f"{take}_{idx:06d}", "split": split, "R": R, "t": t, "focal": FOCAL, "princpt": PRINCPT}
+            xhumans.frames.append({**frame, "params": p, "in_camera": False})
+            if take in exavatar_takes:  # ExAvatar's refit: its own body and poses, the same pelvis, camera frame
+                q = _fit(rng, root_world, pelvis, R, t, j0_ex, in_camera=True)
+                _json(d / "smplx_optimized" / "smplx_params" / f"{idx}.json", q)
+                exavatar.frames.append({**frame, "params": q, "in_camera": True})
         np.savez(d / "render" / "cameras.npz", intrinsic=intr, extrinsic=np.stack(extr))
-    return scene
+    scenes = {"xhumans": xhumans, "exavatar": exavatar}
+    for scene in scenes.values():
+        scene.by_source = scenes
+    return exavatar if set(exavatar_takes) >= {"Take1", "Take2", "Take9"} else xhumans
 
 
 def write_smplerx(root: Path, model_dir: Path, seed: int = 3) -> Scene:

@@ -148,3 +148,108 @@ def test_up_body_needs_a_common_spine_direction(tmp_path, smplx_model_dir):
 
     msg = exavatar(tmp_path, smplx_model_dir, "custom", scatter_roots)
     assert msg.startswith("--up body: the body's spine points in no common direction") and "--up cameras" in msg
+
+
+# --------------------------------------------------------------------------------------------------
+# X-Humans' fit sources
+
+
+def test_xhumans_takes_fitted_with_different_identities(tmp_path, smplx_model_dir):
+    """ExAvatar fits each take with its own identity; one subject has one body, so two identities are refused."""
+    def refit_take2(folder):
+        shape = folder / "train" / "Take2" / "smplx_optimized" / "shape_param.json"
+        shape.write_text(json.dumps((np.array(json.loads(shape.read_text())) + 0.1).tolist()))
+
+    root = tmp_path / "data"
+    layouts.write_xhumans(root, smplx_model_dir, exavatar_takes=("Take1", "Take2", "Take9"))
+    refit_take2(root / "00028")
+    out = tmp_path / "subject"
+    with pytest.raises(FormatError) as err:
+        import_exavatar(root / "00028", "xhumans", out, BodyConfig(str(smplx_model_dir)), say=lambda _: None)
+    msg = str(err.value)
+    assert "Take2/smplx_optimized: another identity than" in msg and "Take1/smplx_optimized" in msg and "\n" not in msg
+    check_nothing_written(tmp_path, out)
+
+
+def test_xhumans_exavatar_fit_missing_for_an_image(tmp_path, smplx_model_dir):
+    def drop(folder):
+        (folder / "train" / "Take1" / "smplx_optimized" / "smplx_params" / "2.json").unlink()
+
+    root = tmp_path / "data"
+    layouts.write_xhumans(root, smplx_model_dir, exavatar_takes=("Take1", "Take2", "Take9"))
+    drop(root / "00028")
+    out = tmp_path / "subject"
+    with pytest.raises(FormatError, match=r"Take1/smplx_optimized/smplx_params: no fit for frame 2 \(color_000002.png\)"):
+        import_exavatar(root / "00028", "xhumans", out, BodyConfig(str(smplx_model_dir)), fits="exavatar",
+                        say=lambda _: None)
+    check_nothing_written(tmp_path, out)
+
+
+def test_xhumans_own_body_files(tmp_path, smplx_model_dir):
+    msg = exavatar(tmp_path, smplx_model_dir, "xhumans", lambda f: (f / "gender.txt").unlink())
+    assert msg.endswith("gender.txt: missing file (X-Humans' subject gender, which its fits were made for)")
+    msg = exavatar(tmp_path / "b", smplx_model_dir, "xhumans", lambda f: (f / "gender.txt").write_text("robot\n"))
+    assert "gender.txt: expected one of ['neutral', 'male', 'female'] on the first line, got 'robot'" in msg
+    msg = exavatar(tmp_path / "c", smplx_model_dir, "xhumans", lambda f: np.save(f / "mean_shape_smplx.npy", [np.nan] * 10))
+    assert msg.endswith("mean_shape_smplx.npy: betas: 10 non-finite value(s) (NaN/Inf)")
+    msg = exavatar(tmp_path / "d", smplx_model_dir, "xhumans", lambda f: None, num_betas=100)
+    assert msg.startswith("--num-betas 100: X-Humans' own fits were made for its own body, whose value is 10")
+
+
+def test_fits_flag_only_for_xhumans(tmp_path, smplx_model_dir):
+    layouts.write_custom(tmp_path / "data", smplx_model_dir)
+    with pytest.raises(ValueError, match="--fits xhumans: .*only with --dataset xhumans"):
+        import_exavatar(tmp_path / "data" / "myvideo", "custom", tmp_path / "subject", BodyConfig(str(smplx_model_dir)),
+                        fits="xhumans", say=lambda _: None)
+
+
+# --------------------------------------------------------------------------------------------------
+# never into or over the input; one JSON reader (issue 26, cases 1 and 6)
+
+
+def tree(folder):
+    return sorted((p.relative_to(folder).as_posix(), p.stat().st_size) for p in folder.rglob("*"))
+
+
+@pytest.mark.parametrize("where", ["capture", "inside", "parent"])
+def test_out_onto_or_into_the_capture_is_refused_before_any_work(tmp_path, smplx_model_dir, capsys, where):
+    """--out CAPTURE (even with --overwrite), --out CAPTURE/sub or --out ROOT holding the capture: one line before
+    anything is read (the body-model folder does not even exist), nothing deleted or created in the capture."""
+    root = tmp_path / "data"
+    layouts.write_custom(root, smplx_model_dir)
+    capture = root / "myvideo"
+    before = tree(root)
+    out = {"capture": capture, "inside": capture / "subject", "parent": root}[where]
+    rc = main(["import", "exavatar", str(root), "--dataset", "custom", "--subject", "myvideo", "--out", str(out),
+               "--body-model-dir", str(tmp_path / "nowhere"), "--overwrite"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and "\n" not in err
+    what = {"capture": "is the input", "inside": "lies inside the input", "parent": "holds the input"}[where]
+    assert what in err and "nowhere" not in err
+    assert tree(root) == before
+
+
+def test_library_import_refuses_its_input_before_reading(tmp_path, smplx_model_dir):
+    """import_exavatar and import_smplx_fits check the output first: a capture whose fits are broken still gets the
+    input refusal, not a fit error."""
+    root = tmp_path / "data"
+    layouts.write_neuman(root, smplx_model_dir)
+    (root / "bike" / "smplx_optimized" / "smplx_params" / "2.json").write_text("{broken")
+    with pytest.raises(ValueError, match="lies inside the input"):
+        import_exavatar(root / "bike", "neuman", root / "bike" / "out", BodyConfig(str(smplx_model_dir)),
+                        say=lambda _: None)
+    assert not (root / "bike" / "out").exists()
+    layouts.write_smplerx(tmp_path / "fits_case", smplx_model_dir)
+    frames, fits = tmp_path / "fits_case" / "frames", tmp_path / "fits_case" / "fits"
+    for out in (fits / "subject", frames, tmp_path / "fits_case" / "masks" / "subject"):
+        with pytest.raises(ValueError, match="the input"):
+            import_smplx_fits(frames, fits, out, tmp_path / "nowhere")
+    assert not (fits / "subject").exists() and not (tmp_path / "fits_case" / "masks" / "subject").exists()
+
+
+def test_a_fit_nested_too_deeply_names_the_file(tmp_path, smplx_model_dir):
+    """A fit JSON nested deeper than Python's parser recurses: one FormatError naming the file (the importers read
+    JSON with formats.common.read_json)."""
+    path = "smplx_optimized/smplx_params_smoothed/1.json"
+    msg = exavatar(tmp_path, smplx_model_dir, "custom", lambda f: (f / path).write_text("[" * 200_000 + "]" * 200_000))
+    assert msg.endswith("1.json: malformed JSON: nested too deeply to read")

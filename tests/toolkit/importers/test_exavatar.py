@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import pickle
 
 import numpy as np
 import pytest
@@ -53,9 +54,9 @@ def joint_offset_added(joint_offset):
 
 
 @torch.no_grad()
-def reference_vertices(model_dir, scene, frame, num_betas=layouts.NUM_BETAS) -> np.ndarray:
+def reference_vertices(model_dir, scene, frame, num_betas=None) -> np.ndarray:
     """smplx's vertices [10475, 3] for the written parameters and identity, in the written camera's frame."""
-    layer = smplx_layer(model_dir, scene.gender, num_betas, scene.face_offset)
+    layer = smplx_layer(model_dir, scene.gender, len(scene.betas) if num_betas is None else num_betas, scene.face_offset)
     p = {k: torch.tensor(np.asarray(v, dtype=np.float64)).reshape(1, -1) for k, v in frame["params"].items() if k != "expr"}
     with joint_offset_added(scene.joint_offset):
         out = layer(betas=torch.tensor(scene.betas)[None], global_orient=p["root_pose"], body_pose=p["body_pose"],
@@ -75,8 +76,9 @@ def pixels(X: np.ndarray, focal, princpt) -> np.ndarray:
     return np.asarray(focal) * X[:, :2] / X[:, 2:] + np.asarray(princpt)
 
 
-def check_against_smplx(subject, scene, model_dir, num_betas=layouts.NUM_BETAS) -> None:
+def check_against_smplx(subject, scene, model_dir, num_betas=None) -> None:
     """Every vertex of every frame within 1e-4 m of smplx's in the camera frame; K as written; pelvis on axis."""
+    num_betas = len(scene.betas) if num_betas is None else num_betas
     assert [f["name"] for f in scene.frames] == subject.frame_names.tolist()
     assert [f["split"] for f in scene.frames] == subject.split.tolist()
     for i, frame in enumerate(scene.frames):
@@ -119,10 +121,17 @@ def test_imported_vertices_match_smplx_in_the_camera(tmp_path, smplx_model_dir, 
     extra = ("--allow-pickle",) if dataset == "xhumans" else ()
     scene, out, rc = run_import(tmp_path, dataset, smplx_model_dir, *extra)
     assert rc == 0, capsys.readouterr().err
-    assert "expression coefficients are ignored" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "expression coefficients are ignored" in said
     subject = load_subject(out)
     assert subject.body_model == "smplx" and subject.num_joints == 55 and subject.body.pose_correctives is not None
     check_against_smplx(subject, scene, smplx_model_dir)
+    fits = subject.meta["generator"]["fits"]
+    if dataset == "xhumans":  # no take holds ExAvatar's fits: X-Humans' own, on its own body (not ExAvatar's identity)
+        assert fits["source"] == "xhumans" and subject.meta["generator"]["num_betas"] == 10
+        assert "posed by X-Humans' own fits" in said and "00028/smplx_optimized (ExAvatar's identity) is not used" in said
+    else:
+        assert fits["source"] == "exavatar" and subject.meta["generator"]["num_betas"] == layouts.NUM_BETAS
     # Images are premultiplied by the mask: black outside the disc, the person inside.
     img, mask = subject.image(0), subject.mask(0)
     assert mask[33, 31] == 1.0 and mask[0, 0] == 0.0 and np.all(img[0, 0] == 0) and img[33, 31].max() > 0
@@ -230,3 +239,103 @@ def test_smplx_fits_keep_each_frames_pelvis_under_the_mean_shape(tmp_path, smplx
         G = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])
         got = G[0, :3, 3] @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
         np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+# --------------------------------------------------------------------------------------------------
+# X-Humans: the fits that belong to the body they pose
+
+
+ALL_TAKES = ("Take1", "Take2", "Take9")
+
+
+def import_xhumans(tmp_path, model_dir, *extra, name="subject"):
+    out = tmp_path / name
+    rc = main(["import", "exavatar", str(tmp_path / "data"), "--dataset", "xhumans", "--subject", "00028", "--out",
+               str(out), "--body-model-dir", str(model_dir), *extra])
+    return rc, out
+
+
+def test_xhumans_with_exavatars_fits_in_every_take(tmp_path, smplx_model_dir, capsys):
+    """Every take holds ExAvatar's fitting output: its fits (camera frame) pose its identity (male, 100 betas,
+    offsets); X-Humans' pickles are not read (no --allow-pickle needed)."""
+    scene = layouts.write_xhumans(tmp_path / "data", smplx_model_dir, exavatar_takes=ALL_TAKES)
+    assert scene is scene.by_source["exavatar"] and scene.face_offset is not None
+    rc, out = import_xhumans(tmp_path, smplx_model_dir)
+    said, err = capsys.readouterr()
+    assert rc == 0, err
+    assert "posed by ExAvatar's fits of 3 take(s) (Take1, Take2, Take9" in said
+    subject = load_subject(out)
+    check_against_smplx(subject, scene, smplx_model_dir)
+    g = subject.meta["generator"]
+    assert g["fits"]["source"] == "exavatar" and g["fits"]["left_out"] == [] and g["fits"]["identity"].endswith("Take1/smplx_optimized")
+    assert g["gender"] == "male" and g["num_betas"] == layouts.NUM_BETAS
+    # --fits xhumans: X-Humans' own fits and body, even so
+    rc, out2 = import_xhumans(tmp_path, smplx_model_dir, "--fits", "xhumans", "--allow-pickle", name="subject2")
+    assert rc == 0 and "--fits xhumans" in capsys.readouterr().out
+    check_against_smplx(load_subject(out2), scene.by_source["xhumans"], smplx_model_dir)
+
+
+def test_xhumans_with_exavatars_fits_in_some_takes(tmp_path, smplx_model_dir, capsys):
+    """Only Take1 and Take2 were fitted by ExAvatar: by default X-Humans' own fits pose every take (one body per
+    subject), said once; --fits exavatar imports the fitted takes and leaves Take9 out."""
+    scene = layouts.write_xhumans(tmp_path / "data", smplx_model_dir, exavatar_takes=("Take1", "Take2"))
+    assert scene is scene.by_source["xhumans"]
+    rc, out = import_xhumans(tmp_path, smplx_model_dir, "--allow-pickle")
+    said = capsys.readouterr().out
+    assert rc == 0
+    assert "only 2 of 3 takes hold ExAvatar's fitting output (Take9 has none; --fits exavatar imports only those)" in said
+    check_against_smplx(load_subject(out), scene, smplx_model_dir)
+    rc, out2 = import_xhumans(tmp_path, smplx_model_dir, "--fits", "exavatar", name="subject2")
+    said = capsys.readouterr().out
+    assert rc == 0 and "left out, holding none: Take9" in said
+    subject = load_subject(out2)
+    assert subject.meta["generator"]["fits"]["left_out"] == ["Take9"] and not len(subject.indices("test"))
+    check_against_smplx(subject, scene.by_source["exavatar"], smplx_model_dir)
+
+
+def test_xhumans_own_body_is_its_gender_and_mean_shape(tmp_path, smplx_model_dir, capsys):
+    """X-Humans' own fits pose X-Humans' body: gender.txt's gender (here female: SMPLX_FEMALE.npz is read, a
+    --gender that differs is refused) and mean_shape_smplx.npy; a frame fitted with other betas keeps its pelvis
+    where its own betas put it."""
+    models = tmp_path / "models"
+    models.mkdir()
+    for gender in ("MALE", "FEMALE"):
+        (models / f"SMPLX_{gender}.npz").symlink_to(smplx_model_dir / "SMPLX_MALE.npz")
+    scene = layouts.write_xhumans(tmp_path / "data", models, gender="female")
+    rc, out = import_xhumans(tmp_path, smplx_model_dir, "--allow-pickle", name="no_female_model")
+    assert rc == 1 and "SMPLX_FEMALE.npz" in capsys.readouterr().err and not out.exists()
+    rc, out = import_xhumans(tmp_path, models, "--allow-pickle", "--gender", "male", name="male")
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and "\n" not in err and "--gender male" in err and "gender.txt" in err and not out.exists()
+    # one frame fitted with its own betas
+    fit = tmp_path / "data" / "00028" / "train" / "Take2" / "SMPLX" / "mesh-f00001_smplx.pkl"
+    with open(fit, "rb") as f:
+        data = pickle.load(f)
+    own_betas = data["betas"] + np.random.default_rng(5).normal(scale=1.0, size=10)
+    with open(fit, "wb") as f:
+        pickle.dump({**data, "betas": own_betas}, f)
+    rc, out = import_xhumans(tmp_path, models, "--allow-pickle")
+    assert rc == 0, capsys.readouterr().err
+    subject = load_subject(out)
+    assert subject.meta["generator"]["gender"] == "female" and subject.meta["generator"]["fits"]["source"] == "xhumans"
+    i = subject.frame_names.tolist().index("Take2_000001")
+    frames = [f for n, f in enumerate(scene.frames) if n != i]
+    check_against_smplx(subject_without(subject, i), layouts.Scene(betas=scene.betas, gender="female", frames=frames),
+                        models)
+    p = {k: torch.tensor(np.asarray(v, dtype=np.float64)).reshape(1, -1) for k, v in scene.frames[i]["params"].items()}
+    with torch.no_grad():
+        want = smplx_layer(models, "female", 10, None)(
+            betas=torch.tensor(own_betas)[None], global_orient=p["root_pose"], body_pose=p["body_pose"],
+            transl=p["trans"]).joints[0, 0].numpy()
+    G = subject.body.skeleton.forward_kinematics(subject.poses[i], subject.trans[i])
+    got = G[0, :3, 3] @ subject.viewmat[i, :3, :3].T.astype(np.float64) + subject.viewmat[i, :3, 3]
+    np.testing.assert_allclose(got, want @ scene.frames[i]["R"].T + scene.frames[i]["t"], atol=1e-5)
+
+
+class subject_without:  # noqa: N801  (a view of a subject without one frame, for check_against_smplx)
+    def __init__(self, subject, drop: int):
+        keep = [n for n in range(subject.num_frames) if n != drop]
+        self.body, self.meta, self.num_frames = subject.body, subject.meta, len(keep)
+        self.frame_names, self.split = subject.frame_names[keep], subject.split[keep]
+        self.poses, self.trans, self.viewmat, self.K = (subject.poses[keep], subject.trans[keep], subject.viewmat[keep],
+                                                        subject.K[keep])
