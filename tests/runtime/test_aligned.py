@@ -4,6 +4,8 @@ directly at the draw by the mesh rasterizer, is what carrying the source frame's
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.cameras import intrinsics, orbit_viewmat
@@ -128,3 +130,17 @@ def test_degenerate_draws_give_finite_output():
     away = orbit_viewmat(CENTER + [0, 0, 50.0], 0.0, 0.1, 3.0)
     a = Aligner(MESH, views([FRONT]), AlignConfig(sources=1)).align(0, POSE, TRANS, away, K, coarse=np.zeros((SIZE, SIZE, 3)))
     assert not a.body.any() and a.coverage == 0.0 and np.isfinite(a.rgb).all() and not a.silhouette.any()
+
+
+@settings(max_examples=25, deadline=None)
+@given(azimuth=st.floats(-np.pi, np.pi), elevation=st.floats(-1.5, 1.5), distance=st.floats(0.05, 1e3),
+       bend=st.floats(-np.pi, np.pi), shift=st.floats(-50.0, 50.0))
+def test_any_draw_gives_finite_consistent_output(azimuth, elevation, distance, bend, shift):
+    """Extreme cameras (inside the box, far away, at the poles) and joint angles: finite, valid only on the body."""
+    pose = np.array([[0.0, 0.0, 0.0], [bend, 0.0, 0.0]])
+    draw = orbit_viewmat(CENTER, azimuth, elevation, distance)
+    coarse = np.clip(np.full((SIZE, SIZE, 3), 0.5) + 0.01 * shift, 0, 1)
+    a = Aligner(MESH, views([FRONT]), AlignConfig(sources=2)).align(0, pose, np.array([0.0, 0.0, 0.0]), draw, K, coarse)
+    assert np.isfinite(a.rgb).all() and a.rgb.min() >= 0 and a.rgb.max() <= 1
+    assert not (a.valid & ~a.body).any() and 0.0 <= a.coverage <= 1.0
+    assert np.isfinite(a.silhouette).all() and a.silhouette.min() >= 0 and a.silhouette.max() <= 1
