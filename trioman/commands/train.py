@@ -18,7 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="loss weight of the --extra-frames frames (default 1)")
     aug = parser.add_argument_group("online augmentation (Generator -> Refiner -> Examiner during training)")
     aug.add_argument("--augment", choices=("coarse", "aligned", "refined", "examined", "truth"), default=None,
-                     help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
+                     nargs="?", const="aligned",
+                     help="pseudo-GT frames made during training (--augment alone: aligned, the kind that measured "
+                          "best, docs/augmentation.md): the avatar's own renders at Generator poses and "
                           "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
                           "refined by --refiner (refined), the best of --per-frame refined candidates by --examiner "
                           "(examined), or the subject's own renderer (truth: synthetic subjects only, the ceiling)")

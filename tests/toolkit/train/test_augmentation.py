@@ -206,3 +206,15 @@ def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys)
                  str(tmp_path / "nope.pt")]) == 1
     assert "--refiner: not found" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()  # nothing written before the inputs are checked
+
+
+def test_augment_alone_means_aligned_with_the_carried_mask(subject, tmp_path):
+    from trioman.commands.train import augment_config
+    from trioman.cli import build_parser
+
+    args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment"])
+    cfg = augment_config(args)
+    assert (cfg.mode, cfg.mask, cfg.unknown_weight, cfg.align_sources) == ("aligned", "carried", 0.0, 3)
+    args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "coarse",
+                                      "--augment-mask", "alpha", "--augment-sources", "1"])
+    assert (augment_config(args).mask, augment_config(args).align_sources) == ("alpha", 1)
