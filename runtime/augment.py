@@ -51,7 +51,7 @@ from trioman.runtime.formats import FormatError, load_avatar, load_subject
 from trioman.runtime.formats.avatar import AVATAR_JSON, sha256_file
 from trioman.runtime.formats.common import _write_npz
 from trioman.runtime.formats.subject import (
-    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, _check_frames, _check_meta,
+    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, _check_frames, _check_meta,
 )
 from trioman.runtime.generator import GROUPS, GeneratorConfig, joint_groups, sample
 from trioman.runtime.image_io import (
@@ -62,7 +62,7 @@ from trioman.runtime.pseudo_gt import MASKS, PseudoConfig, Source, make_pseudo_f
 from trioman.runtime.render import rasterize
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
-__all__ = ["AUGMENT_JSON", "RECORDS_DIR", "HISTOGRAM_PNG", "STAGES", "augment", "frame_seed", "draw_histogram"]
+__all__ = ["AUGMENT_JSON", "RECORDS_DIR", "WEIGHTS_DIR", "HISTOGRAM_PNG", "STAGES", "augment", "frame_seed", "draw_histogram"]
 
 AUGMENT_FORMAT = "trioman-augment"
 AUGMENT_VERSION = 1
@@ -129,7 +129,8 @@ def _written_files(out: Path, source_names: Iterable[str]) -> list[Path]:
     """The files and folders in ``out`` that ``trioman augment`` wrote: the fixed names, the records, the frames
     they list, the frames of an interrupted source frame (``<source name>_c<k>.png``, no record yet) and
     temporary files. Anything else is a FileExistsError naming it: --overwrite removes only its own output."""
-    fixed = {AUGMENT_JSON, SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, HISTOGRAM_PNG, IMAGES_DIR, MASKS_DIR, RECORDS_DIR}
+    fixed = {AUGMENT_JSON, SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, HISTOGRAM_PNG, IMAGES_DIR, MASKS_DIR, RECORDS_DIR,
+             WEIGHTS_DIR}
     records, frames = set(), set()
     for path in (out / RECORDS_DIR).glob("*.json"):
         try:
@@ -146,7 +147,7 @@ def _written_files(out: Path, source_names: Iterable[str]) -> list[Path]:
         for name in sorted(dirs) + sorted(files):
             path = Path(root) / name
             if (is_temp_name(name) or (not parts and name in fixed) or (parts == (RECORDS_DIR,) and name in records)
-                    or (parts in ((IMAGES_DIR,), (MASKS_DIR,)) and (name in frames or orphan.fullmatch(name)))):
+                    or (parts in ((IMAGES_DIR,), (MASKS_DIR,), (WEIGHTS_DIR,)) and (name in frames or orphan.fullmatch(name)))):
                 owned.append(path)
             else:
                 raise FileExistsError(f"--overwrite: {path} was not written by trioman augment; refusing to replace "
@@ -182,12 +183,14 @@ def _model_info(model: Any, path: Path) -> dict[str, Any]:
             "kind": meta.get("trioman.kind"), "version": meta.get("trioman.version")}
 
 
-def _settings(subject: Any, avatar: Any, avatar_path: Path, refiner: Any, refiner_path: Path, examiner: Any,
+def _settings(subject: Any, avatar: Any, avatar_path: Path, refiner: Any, refiner_path: Path | None, examiner: Any,
               examiner_path: Path | None, seed: int, per_frame: int, threshold: float | None, frames: str,
               gen_cfg: GeneratorConfig, mask: str) -> dict[str, Any]:
     source = dict(avatar.meta.get("source", {}))
-    ref = _model_info(refiner, refiner_path)
-    ref["conditions"] = refiner.conditions
+    ref = None
+    if refiner is not None:
+        ref = _model_info(refiner, refiner_path)
+        ref["conditions"] = refiner.conditions
     return {
         "subject": {"path": str(Path(subject.root).resolve()),
                     "frames_sha256": sha256_file(Path(subject.root) / FRAMES_NPZ)},
@@ -242,8 +245,8 @@ def _read_record(out: Path, name: str, index: int) -> dict[str, Any] | None:
     try:
         rec = json.loads(path.read_text(encoding="utf-8"))
         ok = rec["version"] == AUGMENT_VERSION and rec["source"]["index"] == index
-        files = [out / IMAGES_DIR / f"{f['name']}.png" for f in rec["frames"]] + \
-                [out / MASKS_DIR / f"{f['name']}.png" for f in rec["frames"]]
+        files = [out / d / f"{f['name']}.png" for f in rec["frames"]
+                 for d in (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ())]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     return rec if ok and all(f.is_file() for f in files) else None
@@ -261,7 +264,7 @@ def _group_norms(delta: np.ndarray, groups: np.ndarray) -> dict[str, float]:
 def augment(
     subject: str | os.PathLike,
     avatar: str | os.PathLike,
-    refiner: str | os.PathLike,
+    refiner: str | os.PathLike | None,
     out: str | os.PathLike,
     examiner: str | os.PathLike | None = None,
     *,
@@ -281,6 +284,8 @@ def augment(
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
     optional Examiner (ONNX files) into the folder ``out`` (module doc). -> the augment.json content.
+    Without a Refiner (``refiner=None``) the frames are the aligned kind (runtime/pseudo_gt.py): the render
+    with real pixels carried through the body mesh, with per-pixel loss weights in ``out/weights``.
 
     frames: source frames, "train" (the train split) or "all"; limit: the first ``limit`` of them.
     threshold: drop the chosen candidate when its Examiner score is below it (needs an Examiner).
@@ -301,7 +306,10 @@ def augment(
         raise ValueError(f"generator: expected a GeneratorConfig, got {type(gen_cfg).__name__}")
     subject_path = _existing(subject, "SUBJECT", "subject folder")
     avatar_path = _existing(avatar, "--avatar", "avatar folder")
-    refiner_path = _existing(refiner, "--refiner", "Refiner ONNX file")
+    refiner_path = None if refiner is None else _existing(refiner, "--refiner", "Refiner ONNX file")
+    if refiner is None and examiner is not None:
+        raise ValueError("--examiner: chooses among refined candidates; give --refiner too (without a Refiner the "
+                         "pseudo-GT is the aligned kind: the render with real pixels carried through the body mesh)")
     examiner_path = None if examiner is None else _existing(examiner, "--examiner", "Examiner ONNX file")
     if shard is not None and merge:
         raise ValueError("--merge: runs after the --shard jobs, not with --shard")
@@ -317,16 +325,17 @@ def augment(
     selection = views_of[:limit] if limit is not None else views_of
     av = load_avatar(avatar_path)
     _check_joints(av, subj, avatar_path)
-    ref_model = RefinerModel(refiner_path, threads=threads)
+    ref_model = None if refiner_path is None else RefinerModel(refiner_path, threads=threads)
     H, W = subj.height, subj.width
-    if tuple(ref_model.size) != (H, W):
+    if ref_model is not None and tuple(ref_model.size) != (H, W):
         h, w = ref_model.size
         how = (f"trioman export onnx --refiner CKPT --size {H}" if H == W
                else f"export_refiner_onnx(CKPT, PATH, size=({H}, {W}))")
         raise ValueError(f"--refiner: {refiner_path} takes {h}x{w} (H x W) images, but the subject's images are "
                          f"{H}x{W}; export the Refiner at the subject's size ({how})")
     ex_model = None if examiner_path is None else ExaminerModel(examiner_path, threads=threads)
-    pseudo = PseudoConfig(kind="refined" if ex_model is None else "examined", mask=mask, threshold=threshold)
+    kind = "aligned" if ref_model is None else "refined" if ex_model is None else "examined"
+    pseudo = PseudoConfig(kind=kind, mask=mask, threshold=threshold)
     settings = _settings(subj, av, avatar_path, ref_model, refiner_path, ex_model, examiner_path, seed, per_frame,
                          threshold, frames, gen_cfg, mask)
     if had_output and resume:
@@ -358,6 +367,11 @@ class _Step:
     per_frame: int
     generator: GeneratorConfig
 
+    @property
+    def weighted(self) -> bool:
+        """Whether the frames carry per-pixel loss weights (kind aligned: only known pixels are supervised)."""
+        return self.pseudo.kind == "aligned"
+
 
 def _aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig) -> Aligner | None:
     """The aligned reference over the subject's frames ``indices`` (when the pseudo-GT needs it)."""
@@ -387,7 +401,7 @@ def _run(out: Path, subj: Any, selection: list[int], step: _Step, earlier: list[
             shutil.rmtree(path)
     if had_output and resume:
         remove_temp_files(out)  # an interrupted write's leftovers
-    for d in (out, out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR):
+    for d in (out, out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR) + ((out / WEIGHTS_DIR,) if step.weighted else ()):
         d.mkdir(parents=True, exist_ok=True)
     for name in (SUBJECT_JSON,):  # the folder is not a loadable subject while the run is going
         (out / name).unlink(missing_ok=True)
@@ -423,7 +437,7 @@ def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, A
     """Move every shard's frames and records into ``out`` (a record last, so a merge can be rerun), then
     assemble ``out`` from the records in selection order and remove out/shards."""
     start = time.perf_counter()
-    for d in (out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR):
+    for d in (out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR, out / WEIGHTS_DIR):
         d.mkdir(parents=True, exist_ok=True)
     for rec in shards:
         folder = out / SHARDS_DIR / Shard.parse(rec["shard"]).name
@@ -434,7 +448,7 @@ def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, A
                     continue
                 raise ValueError(f"--merge: shard {rec['shard']} has no record for frame {name} ({src})")
             for f in json.loads(src.read_text(encoding="utf-8"))["frames"]:
-                for sub in (IMAGES_DIR, MASKS_DIR):
+                for sub in (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ()):
                     os.replace(folder / sub / f"{f['name']}.png", out / sub / f"{f['name']}.png")
             os.replace(src, _record_path(out, name))
     records = []
@@ -475,8 +489,10 @@ def _augment_frame(subj: Any, i: int, step: _Step, out: Path, groups: np.ndarray
         if k in made.kept:  # the image shows the background where the mask is 0 (subject format)
             write_png(out / IMAGES_DIR / f"{fname}.png", made.images[k])
             write_png(out / MASKS_DIR / f"{fname}.png", made.masks[k])
+            if step.weighted:
+                write_png(out / WEIGHTS_DIR / f"{fname}.png", made.weights[k])
             out_frames.append({"name": fname, "candidate": k, "pose": c.pose.tolist(), "trans": c.trans.tolist(),
-                               "viewmat": c.viewmat.tolist(), "K": K.tolist()})
+                               "viewmat": c.viewmat.tolist(), "K": K.tolist(), **({"weights": True} if step.weighted else {})})
         if made.scores is None:
             status = "kept"
         elif k != made.chosen:
@@ -530,6 +546,7 @@ def _write_subject(out: Path, subj: Any, frames: list[dict[str, Any]], records: 
                       "avatar": settings["avatar"]["path"], "seed": settings["seed"],
                       "per_frame": settings["per_frame"], "threshold": settings["threshold"],
                       "examiner": settings["examiner"] is not None,
+                      "kind": "aligned" if settings["refiner"] is None else "refined",
                       "mask": {"carried": "body mesh and source mask carried to the draw",
                                "alpha": "avatar render alpha"}[settings.get("mask", "alpha")]},
         "sequences": list(dict.fromkeys(seqs)),

@@ -56,6 +56,7 @@ BODY_NPZ = "body.npz"
 FRAMES_NPZ = "frames.npz"
 IMAGES_DIR = "images"
 MASKS_DIR = "masks"
+WEIGHTS_DIR = "weights"  # optional: per-pixel loss weights of every frame (8-bit, 255 = 1), trioman augment's aligned pseudo-GT
 
 # Tolerances for camera checks (the arrays are stored as float32).
 ORTHONORMAL_TOL = 1e-3  # max |R R^T - I|

@@ -374,3 +374,26 @@ def test_mask_alpha_keeps_the_render_alpha(inputs, tmp_path):
     assert aug.meta["generator"]["mask"] == "avatar render alpha"
     with pytest.raises(ValueError, match="--mask: expected one of"):
         run(inputs, tmp_path / "bad", mask="silhouette")
+
+
+def test_without_a_refiner_the_frames_are_aligned_with_per_pixel_weights(inputs, tmp_path):
+    """No model: the render with real pixels carried through the body mesh; weights 0 on body pixels no real pixel
+    reached, 1 elsewhere, written to weights/ beside the masks (and resumed like the rest)."""
+    out = tmp_path / "aligned"
+    augment(inputs.subject, inputs.avatar, None, out, frames="all", limit=2, seed=7, progress=False, per_frame=1)
+    aug, recs = load_subject(out), records(out)
+    assert aug.num_frames == 2 and aug.meta["generator"]["kind"] == "aligned"
+    assert json.loads((out / AUGMENT_JSON).read_text())["settings"]["refiner"] is None
+    for k, rec in enumerate(recs):
+        f = rec["frames"][0]
+        assert f["weights"] is True and 0 <= rec["candidates"][0]["body_coverage"] <= 1
+        w = read_png(out / "weights" / f"{f['name']}.png", mode="gray")
+        assert w.shape == (aug.height, aug.width) and set(np.unique(w)) <= {0.0, 1.0}
+        assert (w == 1).mean() > 0.5
+    before = snapshot(out)
+    (out / "records" / f"{recs[1]['source']['name']}.json").unlink()  # interrupted before its record
+    augment(inputs.subject, inputs.avatar, None, out, frames="all", limit=2, seed=7, progress=False, per_frame=1,
+            resume=True)
+    assert snapshot(out) == before
+    with pytest.raises(ValueError, match="--examiner: chooses among refined candidates"):
+        augment(inputs.subject, inputs.avatar, None, tmp_path / "e", inputs.examiner, progress=False)

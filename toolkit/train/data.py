@@ -15,12 +15,14 @@ import numpy as np
 import torch
 
 from trioman.runtime.formats import Subject
+from trioman.runtime.formats.subject import WEIGHTS_DIR
 
 IN_MEMORY_BYTES = 1 << 30  # frames above this (8-bit image + mask) are read from disk per step
 
 
 class _Pixels:
-    """Frame i's premultiplied image [H, W, 3] and mask [H, W] as float32 tensors in [0, 1]."""
+    """Frame i's premultiplied image [H, W, 3] and mask [H, W] as float32 tensors in [0, 1], and its per-pixel
+    loss weights [H, W] (None: 1 everywhere)."""
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -28,10 +30,14 @@ class _Pixels:
     def get(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
+    def weights(self, i: int) -> torch.Tensor | None:
+        return None
+
 
 class _MemoryPixels(_Pixels):
-    def __init__(self, images: np.ndarray, masks: np.ndarray):
+    def __init__(self, images: np.ndarray, masks: np.ndarray, weights: np.ndarray | None = None):
         self.images, self.masks = torch.from_numpy(images), torch.from_numpy(masks)  # uint8 [F, H, W, 3], [F, H, W]
+        self.pixel_weights = None if weights is None else torch.from_numpy(weights)  # uint8 [F, H, W]
 
     def __len__(self) -> int:
         return len(self.images)
@@ -39,10 +45,13 @@ class _MemoryPixels(_Pixels):
     def get(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         return self.images[i].float() / 255.0, self.masks[i].float() / 255.0
 
+    def weights(self, i: int) -> torch.Tensor | None:
+        return None if self.pixel_weights is None else self.pixel_weights[i].float() / 255.0
+
 
 class _DiskPixels(_Pixels):
-    def __init__(self, subject: Subject, indices: np.ndarray, width: int, height: int):
-        self.subject, self.indices, self.size = subject, indices, (width, height)
+    def __init__(self, subject: Subject, indices: np.ndarray, width: int, height: int, weighted: bool = False):
+        self.subject, self.indices, self.size, self.weighted = subject, indices, (width, height), weighted
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -50,6 +59,11 @@ class _DiskPixels(_Pixels):
     def get(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         img, mask = _read(self.subject, int(self.indices[i]), self.size)
         return torch.from_numpy(img).float() / 255.0, torch.from_numpy(mask).float() / 255.0
+
+    def weights(self, i: int) -> torch.Tensor | None:
+        if not self.weighted:
+            return None
+        return torch.from_numpy(_read_weights(self.subject, int(self.indices[i]), self.size)).float() / 255.0
 
 
 class _JoinedPixels(_Pixels):
@@ -62,6 +76,33 @@ class _JoinedPixels(_Pixels):
     def get(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         n = len(self.first)
         return self.first.get(i) if i < n else self.second.get(i - n)
+
+    def weights(self, i: int) -> torch.Tensor | None:
+        n = len(self.first)
+        return self.first.weights(i) if i < n else self.second.weights(i - n)
+
+
+def _weights_path(subject: Subject, i: int):
+    return subject.root / WEIGHTS_DIR / f"{subject.frame_names[i]}.png"
+
+
+def _read_weights(subject: Subject, i: int, size: tuple[int, int]) -> np.ndarray:
+    """Frame i's per-pixel loss weights resized to ``size`` (W, H) -> uint8 [H, W]."""
+    from trioman.runtime.formats import FormatError
+    from trioman.runtime.image_io import read_png
+
+    path = _weights_path(subject, i)
+    try:
+        w = read_png(path, mode="gray")
+    except (FileNotFoundError, ValueError) as err:
+        raise FormatError(f"{path}: {'missing file' if isinstance(err, FileNotFoundError) else err} (the subject's "
+                          f"{WEIGHTS_DIR}/ folder holds per-pixel weights for every frame or for none)") from None
+    if w.shape != (subject.height, subject.width):
+        raise FormatError(f"{path}: size {w.shape[1]}x{w.shape[0]} (W x H) does not match the subject's "
+                          f"{subject.width}x{subject.height}")
+    if size != (subject.width, subject.height):
+        w = cv2.resize(w, size, interpolation=cv2.INTER_AREA)
+    return np.rint(w * 255.0).astype(np.uint8)
 
 
 def _read(subject: Subject, i: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -100,24 +141,32 @@ class FrameSet:
         """Frame i as the training step takes it: images/masks/poses/trans/K/viewmat and its loss weight."""
         image, mask = self.pixels.get(i)
         fields = {k: getattr(self, k)[i] for k in ("poses", "trans", "K", "viewmat")}
-        return {"images": image, "masks": mask, **fields, "weight": 1.0 if self.weights is None else float(self.weights[i])}
+        pixel_weights = self.pixels.weights(i)
+        return {"images": image, "masks": mask, **fields, "weight": 1.0 if self.weights is None else float(self.weights[i]),
+                **({} if pixel_weights is None else {"pixel_weights": pixel_weights})}
 
 
 def load_frames(subject: Subject, split: str | None, scale: float = 1.0, stride: int = 1,
                 in_memory_bytes: int = IN_MEMORY_BYTES) -> FrameSet:
     """Every ``stride``-th frame of ``split`` (train, test or None for all), resized by ``scale``: held as
-    uint8 when the set takes at most ``in_memory_bytes`` (image + mask), else read from disk per draw."""
+    uint8 when the set takes at most ``in_memory_bytes`` (image + mask), else read from disk per draw.
+    A subject folder with ``weights/`` (trioman augment's aligned pseudo-GT) gives every frame per-pixel loss
+    weights (``FrameSet.sample``'s ``pixel_weights``)."""
     idx = subject.indices(split)[::stride]
     if len(idx) == 0:
         raise ValueError(f"split: subject {subject.root} has no {split!r} frames")
     W, H = max(1, round(subject.width * scale)), max(1, round(subject.height * scale))
-    if len(idx) * H * W * 4 <= in_memory_bytes:
+    weighted = (subject.root / WEIGHTS_DIR).is_dir()
+    if len(idx) * H * W * (5 if weighted else 4) <= in_memory_bytes:
         images, masks = np.empty((len(idx), H, W, 3), np.uint8), np.empty((len(idx), H, W), np.uint8)
+        weights = np.empty((len(idx), H, W), np.uint8) if weighted else None
         for k, i in enumerate(idx):
             images[k], masks[k] = _read(subject, int(i), (W, H))
-        pixels: _Pixels = _MemoryPixels(images, masks)
+            if weights is not None:
+                weights[k] = _read_weights(subject, int(i), (W, H))
+        pixels: _Pixels = _MemoryPixels(images, masks, weights)
     else:
-        pixels = _DiskPixels(subject, idx, W, H)
+        pixels = _DiskPixels(subject, idx, W, H, weighted)
     K = subject.K[idx].astype(np.float64).copy()
     K[:, 0] *= W / subject.width  # continuous pixel coordinates scale with the image
     K[:, 1] *= H / subject.height

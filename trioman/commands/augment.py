@@ -1,7 +1,8 @@
-"""``trioman augment SUBJECT --avatar A --refiner R.onnx [--examiner E.onnx] --out DIR``: pseudo-GT frames, no torch.
+"""``trioman augment SUBJECT --avatar A [--refiner R.onnx [--examiner E.onnx]] --out DIR``: pseudo-GT frames, no torch.
 
-Generator -> coarse render -> body normal map -> Refiner -> Examiner (keep the better of the
-candidates, drop it below --threshold), per source frame; see trioman.runtime.augment and
+Generator -> coarse render -> aligned reference -> body normal map -> Refiner -> Examiner (keep the better of
+the candidates, drop it below --threshold), per source frame; without --refiner the aligned pseudo-GT (no
+model); see trioman.runtime.augment and
 docs/formats.md "Augmented frames". Train on the result with ``trioman train SUBJECT --extra-frames DIR``.
 
 ``--shard I/N`` does only shard I of N's source frames (in DIR/shards/I-of-N; N jobs on one machine or
@@ -19,7 +20,10 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("subject", metavar="SUBJECT", help="subject folder (docs/formats.md)")
     parser.add_argument("--avatar", required=True, help="avatar folder of this subject (trioman export avatar)")
-    parser.add_argument("--refiner", required=True, help="Refiner ONNX file, exported at the subject's image size")
+    parser.add_argument("--refiner", default=None,
+                        help="Refiner ONNX file, exported at the subject's image size (without one: the aligned "
+                             "pseudo-GT, the render with real pixels carried through the body mesh, and per-pixel "
+                             "loss weights in DIR/weights; no model needed)")
     parser.add_argument("--examiner", default=None,
                         help="Examiner ONNX file; without it every candidate is kept (one frame per candidate)")
     parser.add_argument("--out", required=True, help="output folder: a subject of pseudo-GT frames + records")
@@ -60,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     s, t = r["summary"], r["timing"]
     thr = "" if args.threshold is None else f" (threshold {args.threshold:g})"
     if args.examiner is None:
-        print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates, all kept (no --examiner)")
+        how = "no --examiner" if args.refiner else "no --refiner: aligned pseudo-GT with per-pixel weights"
+        print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates, all kept ({how})")
     else:
         sc = s["chosen_scores"]
         print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates: {s['accepted']} accepted, "

@@ -131,3 +131,40 @@ def test_resume_with_extra_frames_matches_an_uninterrupted_run(subjects, tmp_pat
     for key in a["model"]:
         torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=1e-6)
     np.testing.assert_allclose([float(r["loss"]) for r in log(straight)], [float(r["loss"]) for r in log(broken)], atol=1e-6)
+
+
+def test_per_pixel_weights_of_extra_frames_reach_the_loss(subjects, tmp_path):
+    """A subject folder with weights/ (trioman augment without a Refiner): every frame's weights come with its
+    sample, held in memory or read from disk alike; a weight 0 pixel does not change the loss."""
+    import shutil
+
+    from trioman.runtime.image_io import write_png
+    from trioman.toolkit.train.config import TrainConfig as TC
+    from trioman.toolkit.train.loop import photometric
+
+    aug = tmp_path / "weighted"
+    shutil.copytree(subjects[1], aug)
+    s = load_subject(aug)
+    (aug / "weights").mkdir()
+    half = np.zeros((s.height, s.width), np.float32)
+    half[:, : s.width // 2] = 1.0
+    for name in s.frame_names:
+        write_png(aug / "weights" / f"{name}.png", half)
+    mem, disk = load_frames(s, None), load_frames(s, None, in_memory_bytes=0)
+    for frames in (mem, disk):
+        w = frames.sample(0)["pixel_weights"]
+        torch.testing.assert_close(w, torch.from_numpy(half), rtol=0, atol=0)
+    assert "pixel_weights" not in load_frames(load_subject(subjects[1]), None).sample(0)
+    pred, gt = torch.rand(s.height, s.width, 3), torch.rand(s.height, s.width, 3)
+    changed = gt.clone()
+    changed[:, s.width // 2:] = 1 - changed[:, s.width // 2:]  # only where the weight is 0
+    cfg, w = TC(), torch.from_numpy(half)
+    assert float(photometric(pred, gt, cfg, pixel_weights=torch.ones_like(w))) == pytest.approx(float(photometric(pred, gt, cfg)))
+    l1_only = dataclasses.replace(cfg, weights=dataclasses.replace(cfg.weights, ssim=0.0))
+    assert float(photometric(pred, gt, l1_only, pixel_weights=w)) == pytest.approx(float(photometric(pred, changed, l1_only, pixel_weights=w)))
+    run = train(subjects[0], tmp_path / "run", TrainConfig(iterations=4, checkpoint_every=4, avatar=TINY_AVATAR,
+                                                          extra_frames=str(aug)), progress=False)
+    assert len(log(run)) == 4 and all(np.isfinite(float(r["loss"])) for r in log(run))
+    (aug / "weights" / f"{s.frame_names[1]}.png").unlink()
+    with pytest.raises(Exception, match="weights.*missing file"):
+        load_frames(s, None)
