@@ -384,7 +384,7 @@ def test_without_a_refiner_the_frames_are_aligned_with_per_pixel_weights(inputs,
     aug, recs = load_subject(out), records(out)
     assert aug.num_frames == 2 and aug.meta["generator"]["kind"] == "aligned"
     assert json.loads((out / AUGMENT_JSON).read_text())["settings"]["refiner"] is None
-    for k, rec in enumerate(recs):
+    for rec in recs:
         f = rec["frames"][0]
         assert f["weights"] is True and 0 <= rec["candidates"][0]["body_coverage"] <= 1
         w = read_png(out / "weights" / f"{f['name']}.png", mode="gray")
