@@ -37,6 +37,8 @@ are resized with cv2.INTER_AREA (as ``ExaminerModel.score`` does).
 
 from __future__ import annotations
 
+import abc
+
 import contextlib
 import hashlib
 import io
@@ -422,7 +424,7 @@ def _save(proto: onnx.ModelProto, path: Path, external: bool = False) -> None:
 # one model
 
 
-class _Job:
+class _Job(abc.ABC):
     """What the exports of one model share: the torch model, its size, names, metadata and data."""
 
     kind = ""
@@ -435,17 +437,20 @@ class _Job:
         self.outputs: tuple[str, ...] = ()
 
     # subclasses: names, output dims, metadata extras, real-frame feeds, gate
+    @abc.abstractmethod
     def output_tail(self) -> tuple[int, ...]:
-        raise NotImplementedError
+        """The output's dimensions after the batch."""
 
     def extra_meta(self) -> dict[str, str]:
         return {}
 
+    @abc.abstractmethod
     def real_feeds(self, frames: Frames) -> list[dict[str, np.ndarray]]:
-        raise NotImplementedError
+        """The graph's inputs built from real frames, one feed per batch."""
 
+    @abc.abstractmethod
     def gate(self, fp32: Path, variant: Path) -> dict:
-        raise NotImplementedError
+        """The task metric of a reduced-precision variant against the fp32 graph (its keep/drop verdict)."""
 
     def metadata(self, precision: str, extra: dict[str, str] | None = None) -> dict[str, str]:
         p = rt.META_PREFIX

@@ -8,6 +8,8 @@ Real captures are large (X-Humans: ~1,400 training frames per subject at up to 8
 
 from __future__ import annotations
 
+import abc
+
 from dataclasses import dataclass
 
 import cv2
@@ -20,15 +22,17 @@ from trioman.runtime.formats.subject import WEIGHTS_DIR
 IN_MEMORY_BYTES = 1 << 30  # frames above this (8-bit image + mask) are read from disk per step
 
 
-class _Pixels:
+class _Pixels(abc.ABC):
     """Frame i's premultiplied image [H, W, 3] and mask [H, W] as float32 tensors in [0, 1], and its per-pixel
     loss weights [H, W] (None: 1 everywhere)."""
 
+    @abc.abstractmethod
     def __len__(self) -> int:
-        raise NotImplementedError
+        """The number of frames."""
 
+    @abc.abstractmethod
     def get(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
-        raise NotImplementedError
+        """Frame i's (image, mask)."""
 
     def weights(self, i: int) -> torch.Tensor | None:
         return None
