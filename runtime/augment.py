@@ -49,9 +49,9 @@ from trioman import __version__
 from trioman.runtime.aligned import Aligner, SourceViews
 from trioman.runtime.formats import FormatError, load_avatar, load_subject
 from trioman.runtime.formats.avatar import AVATAR_JSON, sha256_file
-from trioman.runtime.formats.common import _write_npz
+from trioman.runtime.formats.common import write_npz
 from trioman.runtime.formats.subject import (
-    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, _check_frames, _check_meta,
+    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, check_frames, check_subject_meta,
 )
 from trioman.runtime.generator import GROUPS, GeneratorConfig, joint_groups, sample
 from trioman.runtime.image_io import (
@@ -552,7 +552,7 @@ def _write_subject(out: Path, subj: Any, frames: list[dict[str, Any]], records: 
         "sequences": list(dict.fromkeys(seqs)),
     }
     where = out / SUBJECT_JSON
-    _check_meta(meta, where)
+    check_subject_meta(meta, where)
     arrays = {
         "poses": np.array([f["pose"] for f in frames], dtype=np.float32),
         "trans": np.array([f["trans"] for f in frames], dtype=np.float32),
@@ -562,10 +562,10 @@ def _write_subject(out: Path, subj: Any, frames: list[dict[str, Any]], records: 
         "sequence": np.array(seqs, dtype=np.str_),
         "frame_names": np.array([f["name"] for f in frames], dtype=np.str_),
     }
-    arrays = _check_frames(arrays, out / FRAMES_NPZ, len(frames), subj.num_joints, meta["sequences"])
+    arrays = check_frames(arrays, out / FRAMES_NPZ, len(frames), subj.num_joints, meta["sequences"])
     atomic_write_bytes(out / BODY_NPZ, (Path(subj.root) / BODY_NPZ).read_bytes())
     with atomic_path(out / FRAMES_NPZ) as tmp:
-        _write_npz(tmp, arrays)
+        write_npz(tmp, arrays)
     atomic_write_text(where, _dump(meta))  # last: a folder with subject.json is a complete subject
 
 

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from trioman.runtime.formats.common import FormatError, _load_npz
+from trioman.runtime.formats.common import FormatError, load_npz
 from trioman.runtime.image_io import atomic_path
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.rotations import axis_angle_to_matrix
@@ -109,7 +109,7 @@ class TripletSet:
     def load(cls, paths: list[str | Path]) -> "TripletSet":
         parts = []
         for s, p in enumerate(paths):
-            a = _load_npz(Path(p))
+            a = load_npz(Path(p))
             for key in _ARRAYS:
                 if key not in a:
                     raise FormatError(f"{p}: {key}: missing array (not a triplet file?)")

@@ -28,9 +28,9 @@ from trioman.runtime.formats.common import (
     _fail,
     _is_int,
     _load_json,
-    _load_npz,
+    load_npz,
     _plain_json,
-    _write_npz,
+    write_npz,
     check_header,
 )
 from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_target, write_synced
@@ -226,10 +226,10 @@ def load_avatar(path: str | os.PathLike) -> Avatar:
         raise FormatError(f"{root / POSE_ONNX}: present, but {AVATAR_JSON} pose_dependent is false")
 
     sk_path = root / SKELETON_NPZ
-    skeleton = _check_skeleton(_load_npz(sk_path), sk_path)
+    skeleton = _check_skeleton(load_npz(sk_path), sk_path)
     _check_pose_joints(meta["pose_joints"], skeleton, meta_path)
     g_path = root / GAUSSIANS_NPZ
-    arrays = _check_gaussians(_load_npz(g_path), g_path, meta["num_gaussians"], skeleton.num_joints, meta["anisotropic"])
+    arrays = _check_gaussians(load_npz(g_path), g_path, meta["num_gaussians"], skeleton.num_joints, meta["anisotropic"])
     session = None
     if meta["pose_dependent"]:
         session = _open_onnx(root / POSE_ONNX, root / POSE_ONNX, skeleton.num_joints, meta["num_gaussians"],
@@ -313,8 +313,8 @@ def save_avatar(
     avatar = Avatar(skeleton, arrays, meta, session)
 
     with atomic_folder(target, overwrite, AVATAR_FOLDER, inputs) as tmp:
-        _write_npz(tmp / GAUSSIANS_NPZ, arrays)
-        _write_npz(tmp / SKELETON_NPZ, {"joint_names": np.array(skeleton.joint_names, dtype=np.str_),
+        write_npz(tmp / GAUSSIANS_NPZ, arrays)
+        write_npz(tmp / SKELETON_NPZ, {"joint_names": np.array(skeleton.joint_names, dtype=np.str_),
                                         "parents": skeleton.parents, "joints": skeleton.joints})
         if pose_dependent_onnx is not None:
             write_synced(tmp / POSE_ONNX, bytes(pose_dependent_onnx))

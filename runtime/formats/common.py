@@ -60,7 +60,7 @@ def _load_json(path: Path) -> Any:
     return read_json(path, "missing file (is this a TrioMan subject folder?)")
 
 
-def _load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | None = None) -> dict[str, np.ndarray]:
+def load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | None = None) -> dict[str, np.ndarray]:
     """The arrays of an .npz, loaded without pickle. Any problem -> FormatError naming the file.
 
     ``known``: the array names the format has; another one is refused before any array is read.
@@ -105,13 +105,13 @@ def _load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | N
         archive.close()
 
 
-def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
     """``arrays`` as an uncompressed .npz at ``path``, fsync'ed (``write_synced``)."""
     write_synced(path, lambda f: np.savez(f, **arrays))
 
 
 def _real(v: Any) -> Any:
-    """A real number (numpy scalars included) as a Python float; anything else unchanged for _check_meta."""
+    """A real number (numpy scalars included) as a Python float; anything else unchanged for the metadata checks."""
     if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
         return float(v)
     return v

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trioman.runtime.formats.common import FormatError, _fail, _load_npz
+from trioman.runtime.formats.common import FormatError, _fail, load_npz
 from trioman.runtime.image_io import atomic_path
 from trioman.runtime.motions import DEFAULT_FPS, DEFAULT_FRAMES, MOTIONS, Motion
 from trioman.runtime.skeleton import Skeleton
@@ -40,7 +40,7 @@ def _scalar(arrays: dict, key: str, kind: str, where: Path):
 def load_motion(path: str | os.PathLike) -> Motion:
     """Load and validate a motion file. -> Motion with joint_names and fps set."""
     path = Path(path)
-    arrays = _load_npz(path)
+    arrays = load_npz(path)
     for key in _FIELDS:
         if key not in arrays:
             raise _fail(path, key, "missing array")

@@ -39,10 +39,10 @@ from trioman.runtime.formats.common import (
     _is_int,
     _is_number,
     _load_json,
-    _load_npz,
+    load_npz,
     _plain_json,
     _real,
-    _write_npz,
+    write_npz,
     check_header,
 )
 from trioman.runtime.skeleton import SkinnedMesh
@@ -185,7 +185,7 @@ class Subject:
 # validation helpers (shared by load and save; ``where`` is the file path or "save_subject")
 
 
-def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
+def check_subject_meta(meta: Any, where: Any) -> dict[str, Any]:
     get = check_header(meta, where, SUBJECT_FORMAT, SUBJECT_VERSION, "subject")
     if get("up_axis") != "z":
         raise _fail(where, "up_axis", f"expected 'z', got {meta['up_axis']!r}")
@@ -226,7 +226,7 @@ def _check_capture_to_world(value: Any, where: Any) -> None:
         raise _fail(where, "capture_to_world", "not a rotation (R R^T != I or det(R) = -1)")
 
 
-def _check_frames(
+def check_frames(
     arrays: Mapping[str, np.ndarray], where: Any, num_frames: int, num_joints: int, sequences: list[str]
 ) -> dict[str, np.ndarray]:
     """Validate the frame arrays; return them cast (float32 / str) and read-only."""
@@ -333,10 +333,10 @@ def load_subject(path: str | os.PathLike, check_images: bool = True) -> Subject:
     if not root.is_dir():
         raise FormatError(f"{root}: not a folder (a subject is a folder with {SUBJECT_JSON}, {BODY_NPZ}, {FRAMES_NPZ}, {IMAGES_DIR}/, {MASKS_DIR}/)")
     meta_path = root / SUBJECT_JSON
-    meta = _check_meta(_load_json(meta_path), meta_path)
+    meta = check_subject_meta(_load_json(meta_path), meta_path)
 
     body_path = root / BODY_NPZ
-    body_arrays = _load_npz(body_path)
+    body_arrays = load_npz(body_path)
     try:
         body = SkinnedMesh.from_arrays(body_arrays)
     except (ValueError, KeyError, TypeError) as err:
@@ -346,7 +346,7 @@ def load_subject(path: str | os.PathLike, check_images: bool = True) -> Subject:
     N, J = meta["num_frames"], body.skeleton.num_joints
     longest = max(200, *(len(s) for s in meta["sequences"]))  # characters of a frame or sequence name
     max_bytes = N * max(J * 3 * 8, 16 * 8, 4 * longest) + 4096  # float64 poses, viewmat, UCS-4 names; header
-    frames = _check_frames(_load_npz(frames_path, FRAME_ARRAYS, max_bytes), frames_path, N, J, meta["sequences"])
+    frames = check_frames(load_npz(frames_path, FRAME_ARRAYS, max_bytes), frames_path, N, J, meta["sequences"])
     subject = Subject(root=root, meta=meta, body=body, **frames)
     if check_images:
         _check_image_files(subject)
@@ -443,7 +443,7 @@ def save_subject(
     }
     if capture_to_world is not None:
         meta["capture_to_world"] = np.asarray(capture_to_world, dtype=np.float64).tolist()
-    _check_meta(meta, where)
+    check_subject_meta(meta, where)
     meta_text = json.dumps(meta, indent=2, allow_nan=False) + "\n"
 
     def as_str(a: Any) -> np.ndarray:
@@ -455,11 +455,11 @@ def save_subject(
         "split": as_str(split), "sequence": sequence, "frame_names": as_str(frame_names),
         "poses_true": poses_true,
     }
-    frames = _check_frames(arrays, where, num_frames, body.skeleton.num_joints, seq_order)
+    frames = check_frames(arrays, where, num_frames, body.skeleton.num_joints, seq_order)
 
     with atomic_folder(target, overwrite, SUBJECT_FOLDER, inputs) as tmp:
-        _write_npz(tmp / BODY_NPZ, body.to_arrays())
-        _write_npz(tmp / FRAMES_NPZ, frames)
+        write_npz(tmp / BODY_NPZ, body.to_arrays())
+        write_npz(tmp / FRAMES_NPZ, frames)
         _write_frames(tmp, frames["frame_names"].tolist(), images, masks, int(width), int(height))
         write_synced(tmp / SUBJECT_JSON, meta_text.encode("utf-8"))
     return Subject(root=target, meta=meta, body=body, **frames)
