@@ -9,8 +9,14 @@ Variants, per held-out subject (``VARIANTS``), all from the quick preset:
     baseline        real frames only, ``iterations`` steps (seeds 0 .. seeds-1)
     baseline_long   equal-compute control: real frames only, as many steps as an augmented run
     G               + Generator: online pseudo-GT = the avatar's own coarse renders (--augment coarse)
+    aligned         the render with real pixels carried through the body mesh, no learned model (--augment aligned)
     GR_none/tex/tex+geo   + Refiner under each condition (--augment refined)
     GRE             + Refiner (tex+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
+    ceiling         the truth at every draw: the subject's own renderer (--augment truth), what a perfect Refiner gives
+
+Every augmented row is also reported as the share of the ceiling's gain over the control it recovers.
+The plan's ``coverage`` and ``pose_noise`` re-render the held-out subjects with that share of the turn and
+that fitting noise (OUT/subjects); with pose noise the avatars are evaluated at the true test poses.
 
 With ``--detail-sigma S`` a lever (``LEVERS``) is trained too: GRd_tex+geo, the tex+geo Refiner's
 pseudo-GT keeping only its detail (``--augment-detail-sigma S``, runtime.generator.keep_detail).
@@ -42,10 +48,12 @@ VARIANTS = (
     ("baseline", None, None, True),
     ("baseline_long", None, None, False),
     ("G", "coarse", None, False),
+    ("aligned", "aligned", None, False),
     ("GR_none", "refined", "none", False),
     ("GR_tex", "refined", "tex", False),
     ("GR_tex+geo", "refined", "tex+geo", False),
     ("GRE", "examined", "tex+geo", True),
+    ("ceiling", "truth", None, False),
 )
 # Levers: variants beyond the paper's, trained when their option is given; same tuple layout.
 LEVERS = (("GRd_tex+geo", "refined", "tex+geo", False),)
@@ -55,6 +63,7 @@ LABELS = {
     "GR_none": "+ Refinement (without condition)", "GR_tex": "+ Refinement (only tex. condition)",
     "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GRE": "+ Generator & Refiner & Examiner",
     "GRd_tex+geo": "+ Generator & Refiner (tex.&geo.), detail only (lever)",
+    "aligned": "+ Generator, aligned real pixels (no Refiner)", "ceiling": "Ceiling: the truth at every draw",
 }
 # The paper's subject 00028 (PSNR dB): Table 1 against the baseline, Table 2 against coarse frames.
 PAPER_TABLE1 = {"baseline": 30.5842, "G": 31.2905, "GR_tex+geo": 32.6586, "GRE": 33.0412}
@@ -71,6 +80,14 @@ class AblationPlan:
     pool: int = 8
     weight: float = 1.0
     detail_sigma: float | None = None  # trains the GRd_tex+geo lever with this blur sigma (pixels)
+    mask: str = "carried"  # pseudo frames' mask (AugmentConfig.mask)
+    coverage: float = 1.0  # share of a full turn the held-out subjects' training frames span (re-rendered when < 1)
+    pose_noise: float = 0.0  # degrees of fitting noise on the held-out subjects' stored poses (re-rendered when > 0)
+
+    @property
+    def regime(self) -> str:
+        """The suffix of the subjects and runs of this plan's capture regime ('' for the corpus's own subjects)."""
+        return "" if (self.coverage, self.pose_noise) == (1.0, 0.0) else f"-cov{self.coverage:g}-noise{self.pose_noise:g}"
 
     @property
     def variants(self) -> tuple[tuple, ...]:
@@ -105,11 +122,11 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
     if any(name == n for n, *_ in LEVERS):
         paths["detail_sigma"] = plan.detail_sigma
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
-                        weight=plan.weight, **paths)
+                        weight=plan.weight, mask=plan.mask, **paths)
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
-def _train_and_evaluate(subject: Path, run: Path, cfg, lpips) -> dict:
+def _train_and_evaluate(subject: Path, run: Path, cfg, lpips, poses: str = "stored") -> dict:
     from trioman.toolkit.corpus import finished
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.train.loop import AUGMENT_JSON, train
@@ -118,8 +135,8 @@ def _train_and_evaluate(subject: Path, run: Path, cfg, lpips) -> dict:
         train(subject, run, cfg, resume=(run / "config.json").exists(), progress=False, lpips=lpips)
     summary_file = run / "eval_test" / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
-    if summary is None or summary["step"] != cfg.iterations:
-        summary = evaluate(run, "test", lpips=lpips, progress=False, video=False, grid_frames=3)
+    if summary is None or summary["step"] != cfg.iterations or summary.get("poses", "stored") != poses:
+        summary = evaluate(run, "test", lpips=lpips, progress=False, video=False, grid_frames=3, poses=poses)
     seconds = float((run / "train_log.csv").read_text().splitlines()[-1].split(",")[1])
     aug = json.loads((run / AUGMENT_JSON).read_text()) if (run / AUGMENT_JSON).is_file() else None
     return {"iterations": cfg.iterations, "train_seconds": seconds, **summary["mean"], "augment": aug}
@@ -199,7 +216,11 @@ def bench_ablation(args: argparse.Namespace) -> dict:
     unknown = sorted(set(names) - set(heldout))
     if unknown:
         raise ValueError(f"--ablation-subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
-    plan = AblationPlan(iterations=args.iterations or AblationPlan.iterations, seeds=args.seeds, detail_sigma=args.detail_sigma)
+    plan = plan_of(args)
+    only = set(args.variants.split(",")) if getattr(args, "variants", None) else None
+    known = {v for v, *_ in plan.variants}
+    if only is not None and not only <= known:
+        raise ValueError(f"--variants: unknown {sorted(only - known)}; the plan's rows are {[v for v, *_ in plan.variants]}")
     t0 = time.perf_counter()
     report_only = bool(getattr(args, "no_training", False))
     models, model_info = _trained_models(out) if report_only else _models(corpus, out, args)
@@ -210,30 +231,62 @@ def bench_ablation(args: argparse.Namespace) -> dict:
     lpips = load_lpips_or_say_why("bench ablation")
     results: dict[str, dict] = {}
     truth: dict[str, dict] = {}
-    for name in names:
-        subject = corpus / "subjects" / name
+    poses = "true" if plan.pose_noise > 0 else "stored"
+    for heldout_name in names:
+        name = heldout_name + plan.regime
+        subject = regime_subject(corpus / "subjects" / heldout_name, out, plan)
         results[name] = {}
         for variant, seed in _variant_runs(plan):
             t = time.perf_counter()
             cfg = _train_config(variant, seed, plan, models)
             run = out / "runs" / name / f"{variant.replace('+', '_')}_s{seed}"
-            if report_only and not finished(run, cfg.iterations):
+            if (report_only or (only is not None and variant not in only)) and not finished(run, cfg.iterations):
                 missing.append(f"{name}/{run.name}")
                 continue
-            r = _train_and_evaluate(subject, run, cfg, lpips)
+            r = _train_and_evaluate(subject, run, cfg, lpips, poses)
             results[name].setdefault(variant, {})[str(seed)] = r
             print(f"bench ablation: {name} {variant} seed {seed}: test PSNR {r['psnr']:.2f} dB "
                   f"({r['train_seconds']:.0f} s training, {time.perf_counter() - t:.0f} s with evaluation)", flush=True)
-        _grid(subject, out, name, [v for v, *_ in plan.variants if "0" in results[name].get(v, {})])
-        _pseudo_examples(subject, out, name, models)
-        truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan)
+        done = [v for v, *_ in plan.variants if "0" in results[name].get(v, {})]
+        if done:
+            _grid(subject, out, name, done)
+        if "baseline" in done:  # pseudo-GT is made from the baseline avatar
+            truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan, out, name)
     check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus, args.baseline_frames)["heldout"][heldout.index(n)] for n in names])
-    report = {"corpus": str(corpus), "subjects": names, "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
+    report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
     report["summary"] = summarise(results)
     _bar_charts(report, out)
     return report
+
+
+def plan_of(args: argparse.Namespace) -> AblationPlan:
+    """The plan of the command's options (defaults: AblationPlan's)."""
+    d = AblationPlan()
+    given = {"iterations": args.iterations or d.iterations, "seeds": args.seeds, "detail_sigma": args.detail_sigma}
+    for key, flag in (("start", "augment_start"), ("pool", "augment_pool"), ("refresh", "augment_refresh"),
+                      ("mask", "augment_mask"), ("coverage", "coverage"), ("pose_noise", "pose_noise")):
+        if getattr(args, flag, None) is not None:
+            given[key] = getattr(args, flag)
+    return AblationPlan(**given)
+
+
+def regime_subject(subject: Path, out: Path, plan: AblationPlan) -> Path:
+    """The held-out subject as the plan's regime captures it: the corpus's own folder, or (coverage < 1 or pose
+    noise) the same synthetic subject re-rendered with them in OUT/subjects (made once)."""
+    if not plan.regime:
+        return subject
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
+
+    target = out / "subjects" / (subject.name + plan.regime)
+    if not (target / "subject.json").is_file():
+        made = dict(load_subject(subject, check_images=False).meta["generator"])
+        made.pop("tool"), made.pop("version")
+        cfg = SynthConfig(**{**made, "coverage": plan.coverage, "pose_noise_deg": plan.pose_noise})
+        synthesize_subject(cfg, target, progress=False)
+    return target
 
 
 def _mean_over_seeds(runs: dict[str, dict], key: str) -> float:
@@ -262,7 +315,18 @@ def summarise(results: dict[str, dict]) -> dict:
         verdict["table1_order_holds"] = p["baseline"] < p["G"] < p["GR_tex+geo"] < p["GRE"]
     if {"GR_none", "GR_tex", "GR_tex+geo"} <= set(p):
         verdict["table2_order_holds"] = p["GR_none"] < p["GR_tex"] < p["GR_tex+geo"]
-    return {"mean": mean, "seed_spread_psnr": spread, "verdict": verdict}
+    share = share_of_ceiling(mean)
+    if {"baseline_long", "ceiling"} <= set(p):
+        verdict["ceiling_gain_db"] = p["ceiling"] - p["baseline_long"]
+        verdict["ceiling_gain_at_least_1db"] = verdict["ceiling_gain_db"] >= 1.0
+        if "GRE" in share:
+            verdict["full_share_of_ceiling"] = share["GRE"]
+            verdict["full_recovers_85_percent"] = share["GRE"] >= 0.85
+    if "baseline" in mean and mean["baseline"]["psnr_unmasked"] is not None:
+        base = mean["baseline"]["psnr_unmasked"]
+        verdict["unmasked_at_least_baseline"] = {v: mean[v]["psnr_unmasked"] >= base for v in variants
+                                                 if v not in ("baseline", "baseline_long") and mean[v]["psnr_unmasked"] is not None}
+    return {"mean": mean, "seed_spread_psnr": spread, "share_of_ceiling": share, "verdict": verdict}
 
 
 def _grid(subject: Path, out: Path, name: str, variants: list[str], frames: int = 3) -> Path:
@@ -289,103 +353,91 @@ def _grid(subject: Path, out: Path, name: str, variants: list[str], frames: int 
 
 
 @torch.no_grad()
-def _pseudo_examples(subject: Path, out: Path, name: str, models: dict[str, Path], count: int = 4) -> Path:
-    """Pseudo-GT frames of the seed-0 baseline avatar, the same Generator draws through each mode and
-    Refiner: rows = draws, columns = coarse, refined (none / tex / tex+geo), over white."""
-    from trioman.runtime.image_io import write_png
-    from trioman.runtime.preview import contact_sheet
-    from trioman.toolkit.evaluate import load_run
-    from trioman.toolkit.train.augmentation import AugmentConfig, Augmenter
-    from trioman.toolkit.train.data import load_frames
-
-    model, subj, _, _ = load_run(out / "runs" / name / "baseline_s0")
-    frames = load_frames(subj, "train")
-    columns = [("coarse", None)] + [(f"refined ({c})", str(models[f"refiner_{c}"])) for c in ("none", "tex", "tex+geo")]
-    pools = []
-    for _, refiner in columns:
-        aug = Augmenter(AugmentConfig(mode="refined" if refiner else "coarse", refiner=refiner, pool=count, start=0.0),
-                        subj, frames, 1, seed=0)  # the same seed: the same source frames and draws in every column
-        aug.rebuild(model)
-        pools.append(aug.pool)
-    images, labels = [], []
-    for j in range(count):
-        for (label, _), pool in zip(columns, pools):
-            images.append(pool["images"][j].numpy() + (1 - pool["masks"][j].numpy())[..., None])
-            labels.append(label)
-    path = out / f"pseudo_gt_{name}.png"
-    write_png(path, contact_sheet(images, labels, cols=len(columns)))
-    return path
-
-
-@torch.no_grad()
-def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: AblationPlan, draws: int = 12,
-                    seed: int = 7) -> dict:
+def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: AblationPlan, out: Path, name: str,
+                    draws: int = 12, seed: int = 7) -> dict:
     """Pseudo-GT against the truth, which a synthetic subject has: the same ``draws`` Generator candidates
-    (from training frames) rendered by the subject's own mesh renderer at the candidate's pose and camera.
-    -> {"frames": masked PSNR of the seed-0 baseline avatar's coarse render, each Refiner's output and
-    the detail-only output (with plan.detail_sigma), "avatars": per finished run (seed 0) masked PSNR of
-    its coarse render and its mean signed colour error (RGB, inside the true mask)}."""
+    (from training frames) made into pseudo-GT by the shared augmentation step (runtime.pseudo_gt) from the
+    seed-0 baseline avatar, one kind at a time, against the subject's own mesh renderer at the draw (the
+    candidate's pose change on the true pose, its camera). Writes pseudo_gt_<name>.png (rows: draws; columns:
+    truth, render, aligned, each Refiner). -> {"frames": masked PSNR per kind, "coverage": mean share of body
+    pixels holding carried real pixels, "ms_per_draw": per kind, "avatars": per finished run (seed 0) masked PSNR
+    of its render and its mean signed colour error (RGB, inside the true mask)}."""
+    from trioman.runtime.aligned import Aligner, SourceViews
     from trioman.runtime.formats import load_subject
-    from trioman.runtime.generator import keep_detail, sample
-    from trioman.runtime.normal_map import body_normal_map
-    from trioman.toolkit.evaluate import load_run
+    from trioman.runtime.generator import sample
+    from trioman.runtime.image_io import write_png
     from trioman.runtime.metrics import psnr as psnr_db
-    from trioman.toolkit.synth.shading import render_textured
-    from trioman.toolkit.synth.subject import SynthConfig, build_body
-    from trioman.toolkit.synth.texture import bake_texture
+    from trioman.runtime.preview import contact_sheet
+    from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
+    from trioman.toolkit.evaluate import load_run
+    from trioman.toolkit.synth.subject import TruthRenderer
     from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
     from trioman.toolkit.train.pseudo_models import load_pseudo_refiner
 
     subj = load_subject(subject)
-    made = dict(subj.meta["generator"])
-    if made.pop("tool", None) != "trioman synth":
+    try:
+        truth_renderer = TruthRenderer(subj)
+    except ValueError:
         return {}
-    made.pop("version", None)
-    cfg = SynthConfig(**made)
-    mesh, _ = build_body(cfg)
-    texture = bake_texture(mesh, seed=cfg.seed, size=cfg.texture_size)
     rng = np.random.default_rng(seed)
     W, H, bg = subj.width, subj.height, subj.background.astype(np.float32)
-    draws_ = []
-    for i in rng.choice(subj.indices("train"), size=draws):
+    train = subj.indices("train")
+    views = SourceViews(lambda p: subj.image(int(train[p])) * subj.mask(int(train[p]))[..., None],
+                        lambda p: subj.mask(int(train[p])), subj.poses[train], subj.trans[train], subj.viewmat[train],
+                        subj.K[train], W, H)
+    aligner = Aligner(subj.body, views)
+    picked = []
+    for p in rng.choice(len(train), size=draws):
+        i = int(train[p])
         c = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]), np.asarray(subj.viewmat[i]),
                    rng, 1, AugmentConfig().generator())[0]
+        m = subj.mask(i)[..., None]
         K = np.asarray(subj.K[i], np.float64)
-        rgb, mask = render_textured(mesh, mesh.pose(c.pose.astype(np.float64), c.trans.astype(np.float64)), texture,
-                                    c.viewmat, K, W, H, cfg.supersample)
-        m = subj.mask(int(i))[..., None]
-        draws_.append({"c": c, "K": K, "truth": rgb, "mask": mask, "real": (subj.image(int(i)) * m + (1 - m) * bg).astype(np.float32),
-                       "normal": body_normal_map(subj.body, c.pose, c.trans, c.viewmat, K, W, H).rgb.astype(np.float32)})
-
-    def coarse(model) -> np.ndarray:
-        return np.stack([render_candidate(model, d["c"], torch.from_numpy(d["K"].astype(np.float32)), W, H, bg)[0]
-                         for d in draws_])
-
-    truth = np.stack([d["truth"] for d in draws_])
-    mask = np.stack([d["mask"] for d in draws_])[..., None]
+        picked.append((c, Source(int(p), (subj.image(i) * m + (1 - m) * bg).astype(np.float32), K, bg),
+                       truth_renderer.at_draw(i, c, K)))
+    truth = np.stack([t[0] for _, _, t in picked])
+    mask = np.stack([t[1] for _, _, t in picked])[..., None]
 
     def psnr(x: np.ndarray) -> float:
         # both over white outside the true mask (the masked protocol); one PSNR of all draws together
         return float(psnr_db((x * mask)[None], (truth * mask)[None])[0])
 
-    base = coarse(load_run(runs / "baseline_s0")[0])
-    frames = {"coarse": psnr(base)}
-    reference, normal = np.stack([d["real"] for d in draws_]), np.stack([d["normal"] for d in draws_])
-    for cond in ("none", "tex", "tex+geo"):
-        ref = load_pseudo_refiner(str(models[f"refiner_{cond}"]))
-        refined = np.asarray(ref.refine(base, reference=None if cond == "none" else reference,
-                                        normal=normal if cond == "tex+geo" else None), dtype=np.float32)
-        frames[f"refined ({cond})"] = psnr(refined)
-        if cond == "tex+geo" and plan.detail_sigma:
-            frames[f"detail only (tex+geo, {plan.detail_sigma:g} px)"] = psnr(keep_detail(base, refined, plan.detail_sigma))
+    def render_with(model, K: np.ndarray):
+        return lambda c: render_candidate(model, c, torch.from_numpy(K.astype(np.float32)), W, H, bg)
+
+    base = load_run(runs / "baseline_s0")[0]
+    kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None)]
+    kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
+              for c in ("none", "tex", "tex+geo")]
+    if plan.detail_sigma:
+        kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)",
+                      PseudoConfig("refined", detail_sigma=plan.detail_sigma), kinds[-1][2]))
+    frames, coverage, ms, columns = {}, {}, {}, {}
+    for label, cfg, refiner in kinds:
+        seconds: dict[str, float] = {}
+        made = [make_pseudo_frames([c], src, render_with(base, src.K), cfg, body=subj.body, aligner=aligner,
+                                   refiner=refiner, seconds=seconds) for c, src, _ in picked]
+        images = np.stack([m.images[0] for m in made])  # over the subject's background; composited like the truth
+        frames[label] = psnr(images)
+        ms[label] = 1e3 * sum(seconds.values()) / draws
+        if made[0].coverage:
+            coverage[label] = float(np.mean([m.coverage[0] for m in made]))
+        columns[label] = images
+    sheet, labels = [], []
+    for j in range(min(4, draws)):
+        for label, images in [("truth", truth + (1 - mask) * bg)] + list(columns.items()):
+            sheet.append(images[j])
+            labels.append(label)
+    write_png(out / f"pseudo_gt_{name}.png", contact_sheet(sheet, labels, cols=1 + len(columns)))
     avatars = {}
     for v, *_ in plan.variants:
         run = runs / f"{v.replace('+', '_')}_s0"
         if (run / "eval_test" / "summary.json").is_file():
-            x = coarse(load_run(run)[0])
+            model = load_run(run)[0]
+            x = np.stack([render_with(model, src.K)(c)[0] for c, src, _ in picked])
             inside = mask[..., 0] > 0.5
             avatars[v] = {"psnr": psnr(x), "colour_bias": [float(b) for b in (x - truth)[inside].mean(0)]}
-    return {"draws": draws, "frames": frames, "avatars": avatars}
+    return {"draws": draws, "frames": frames, "coverage": coverage, "ms_per_draw": ms, "avatars": avatars}
 
 
 def _bar_charts(report: dict, out: Path) -> None:
@@ -411,28 +463,43 @@ def _bar_charts(report: dict, out: Path) -> None:
         plt.close(fig)
 
 
-def _row(label: str, m: dict, ref: float | None, paper: float | None) -> str:
+def _row(label: str, m: dict, ref: float | None, paper: float | None, share: float | None = None) -> str:
     d = "" if ref is None else f"{m['psnr'] - ref:+.2f}"
     lp = "n/a" if m.get("lpips") is None else f"{m['lpips']:.4f}"
-    return f"| {label} | {m['psnr']:.2f} | {m['ssim']:.4f} | {lp} | {m['psnr_unmasked']:.2f} | {d} | {'' if paper is None else f'{paper:+.2f}'} |"
+    sh = "" if share is None else f"{share:.0%}"
+    return (f"| {label} | {m['psnr']:.2f} | {m['ssim']:.4f} | {lp} | {m['psnr_unmasked']:.2f} | {d} | {sh} | "
+            f"{'' if paper is None else f'{paper:+.2f}'} |")
+
+
+def share_of_ceiling(per_variant: dict[str, dict]) -> dict[str, float]:
+    """Per augmented variant: (its PSNR - the equal-steps control's) / (the ceiling's - the control's)."""
+    if not {"baseline_long", "ceiling"} <= set(per_variant):
+        return {}
+    gain = per_variant["ceiling"]["psnr"] - per_variant["baseline_long"]["psnr"]
+    if abs(gain) < 1e-9:
+        return {}
+    return {v: (m["psnr"] - per_variant["baseline_long"]["psnr"]) / gain for v, m in per_variant.items()
+            if v not in ("baseline", "baseline_long", "ceiling")}
 
 
 def _tables(per_variant: dict[str, dict]) -> list[str]:
-    head = ["| method | PSNR | SSIM | LPIPS | PSNR unmasked | ours vs first row (dB) | paper 00028 vs first row (dB) |",
-            "|---|---|---|---|---|---|---|"]
-    lines = ["Table 1", ""] + head
-    base = per_variant["baseline"]["psnr"]
-    for v in ("baseline", "G", "GR_tex+geo", "GRE", "baseline_long", "GRd_tex+geo"):
+    head = ["| method | PSNR | SSIM | LPIPS | PSNR unmasked | ours vs first row (dB) | share of the ceiling's gain | "
+            "paper 00028 vs first row (dB) |", "|---|---|---|---|---|---|---|---|"]
+    share = share_of_ceiling(per_variant)
+    lines = ["Table 1 (share of the ceiling's gain: over the equal-steps control)", ""] + head
+    base = per_variant["baseline"]["psnr"] if "baseline" in per_variant else None
+    for v in ("baseline", "baseline_long", "G", "aligned", "GR_tex+geo", "GRE", "GRd_tex+geo", "ceiling"):
         if v in per_variant:
             paper = PAPER_TABLE1[v] - PAPER_TABLE1["baseline"] if v in PAPER_TABLE1 else None
-            lines.append(_row(LABELS[v], per_variant[v], base, paper))
-    lines += ["", "Table 2", ""] + head
-    coarse = per_variant["G"]["psnr"]
-    for v in ("G", "GR_none", "GR_tex", "GR_tex+geo"):
-        if v in per_variant:
-            label = "Coarse image generation (+ Generator)" if v == "G" else LABELS[v].replace("+ Generator & Refiner (tex.&geo.)",
-                                                                                              "+ Refinement (tex.&geo. condition)")
-            lines.append(_row(label, per_variant[v], coarse, PAPER_TABLE2[v] - PAPER_TABLE2["G"]))
+            lines.append(_row(LABELS[v], per_variant[v], base, paper, share.get(v)))
+    if "G" in per_variant:
+        lines += ["", "Table 2", ""] + head
+        coarse = per_variant["G"]["psnr"]
+        for v in ("G", "GR_none", "GR_tex", "GR_tex+geo"):
+            if v in per_variant:
+                label = "Coarse image generation (+ Generator)" if v == "G" else LABELS[v].replace(
+                    "+ Generator & Refiner (tex.&geo.)", "+ Refinement (tex.&geo. condition)")
+                lines.append(_row(label, per_variant[v], coarse, PAPER_TABLE2[v] - PAPER_TABLE2["G"], share.get(v)))
     return lines + [""]
 
 
@@ -443,6 +510,9 @@ def ablation_markdown(r: dict) -> str:
              f"training subjects only, on the coarse frames of the '{r.get('baseline_frames', 'all')}' variant (all: their "
              "avatars saw every frame; subset: every 4th, so most coarse frames carry novel-view error). Test split = novel poses from novel views; PSNR/SSIM under the masked protocol "
              f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
+             f"Capture regime: {plan.get('coverage', 1.0):g} of a full turn in the training frames, pose noise "
+             f"{plan.get('pose_noise', 0.0):g} deg" + (" (evaluated at the true test poses)" if plan.get("pose_noise") else "")
+             + f"; pseudo frames masked by '{plan.get('mask', 'alpha')}'. "
              f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
              f"{plan['augmented_iterations']} steps; pseudo-GT from step {plan['start']:.0%} on, pool of {plan['pool']} "
              f"rebuilt every {plan['refresh']} steps, {plan['share']:.0%} of later steps on it, weight {plan['weight']}. "
@@ -463,6 +533,15 @@ def ablation_markdown(r: dict) -> str:
     for key, text in (("table1_order_holds", "baseline < + G < + G&R < + G&R&E"), ("table2_order_holds", "none < tex < tex+geo")):
         if key in v:
             lines.append(f"Ordering {text}: {'holds' if v[key] else 'does not hold'}.")
+    if "ceiling_gain_db" in v:
+        lines.append(f"Ceiling (the truth at every draw) over the equal-steps control: **{v['ceiling_gain_db']:+.2f} dB** "
+                     f"(target >= +1.0 dB: {'met' if v['ceiling_gain_at_least_1db'] else 'missed'})"
+                     + (f"; the full system recovers {v['full_share_of_ceiling']:.0%} of it (target >= 85 %)."
+                        if "full_share_of_ceiling" in v else "."))
+    if v.get("unmasked_at_least_baseline"):
+        below = [k for k, ok in v["unmasked_at_least_baseline"].items() if not ok]
+        lines.append("Unmasked PSNR of every augmented row >= the baseline's: "
+                     + ("yes." if not below else f"no ({', '.join(below)} below)."))
     lines.append("")
     for name, res in r["results"].items():
         per = {var: {k: _mean_over_seeds(runs, k) if all(x[k] is not None for x in runs.values()) else None
@@ -478,15 +557,18 @@ def ablation_markdown(r: dict) -> str:
                 lines.append(f"| {var} | {seed} | {x['iterations']} | {x['psnr']:.2f} | {x['train_seconds'] / 60:.1f} min | "
                              f"{a['pseudo_steps'] if a else ''} | {kept} | {ms} |")
         lines += ["", f"![PSNR per variant](ablation_{name}.png)", "", f"![the same test frames across variants](grid_{name}.png)", "",
-                  f"![pseudo-GT of the baseline avatar: coarse and refined per condition](pseudo_gt_{name}.png)", ""]
+                  f"![the same draws: truth, the baseline avatar's render, aligned, refined per condition](pseudo_gt_{name}.png)", ""]
     for name, t in r.get("pseudo_gt_truth", {}).items():
         if not t:
             continue
         lines += [f"## Pseudo-GT against the truth: {name}", "",
                   f"{t['draws']} Generator draws from training frames; truth = the synthetic subject rendered by its own mesh "
-                  "renderer at the draw's pose and camera; masked PSNR. Frames from the seed-0 baseline avatar:", "",
-                  "| pseudo-GT | PSNR vs truth |", "|---|---|"]
-        lines += [f"| {k} | {v:.2f} |" for k, v in t["frames"].items()]
+                  "renderer at the draw's pose change on the true pose and camera; masked PSNR. Pseudo-GT from the seed-0 "
+                  "baseline avatar by the shared augmentation step; coverage = share of body pixels holding carried real pixels:",
+                  "", "| pseudo-GT | PSNR vs truth | vs the render | coverage | ms per draw |", "|---|---|---|---|---|"]
+        lines += [f"| {k} | {v:.2f} | {v - t['frames']['coarse']:+.2f} | "
+                  f"{'' if k not in t.get('coverage', {}) else format(t['coverage'][k], '.0%')} | "
+                  f"{t.get('ms_per_draw', {}).get(k, float('nan')):.0f} |" for k, v in t["frames"].items()]
         lines += ["", "Each finished run's own renders at the same draws (what its next pseudo-GT would start from), with "
                   "the mean signed colour error inside the body (RGB, 0..1):", "",
                   "| run (seed 0) | PSNR vs truth | colour error R, G, B |", "|---|---|---|"]

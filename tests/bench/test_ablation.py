@@ -10,7 +10,7 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.ablation import LEVERS, VARIANTS, AblationPlan, summarise  # noqa: E402
+from trioman.bench.ablation import LABELS, LEVERS, VARIANTS, AblationPlan, summarise  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
 
@@ -34,19 +34,27 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert res["baseline_long"]["0"]["iterations"] == 4 and res["baseline"]["0"]["augment"] is None
     assert r["plan"]["detail_sigma"] == 2.0
     truth = r["pseudo_gt_truth"]["s02"]
-    assert set(truth["frames"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)",
+    assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "refined (none)", "refined (tex)", "refined (tex+geo)",
                                     "detail only (tex+geo, 2 px)"}
+    assert all(np.isfinite(v) for v in truth["frames"].values()) and 0 < truth["coverage"]["aligned (no Refiner)"] <= 1
     assert set(truth["avatars"]) == {v for v, *_ in VARIANTS + LEVERS} and all(
         np.isfinite(a["psnr"]) and len(a["colour_bias"]) == 3 for a in truth["avatars"].values())
     cfg = json.loads((out / "runs" / "s02" / "GRd_tex_geo_s0" / "config.json").read_text())
     assert cfg["train"]["augment"]["detail_sigma"] == 2.0
-    for variant, mode in (("G", "coarse"), ("GR_tex", "refined"), ("GRE", "examined"), ("GRd_tex+geo", "refined")):
+    for variant, mode in (("G", "coarse"), ("aligned", "aligned"), ("GR_tex", "refined"), ("GRE", "examined"),
+                          ("GRd_tex+geo", "refined"), ("ceiling", "truth")):
         a = res[variant]["0"]["augment"]
         assert a["mode"] == mode and a["kept"] > 0, variant
     assert all(np.isfinite(x["psnr"]) for runs in res.values() for x in runs.values())
     assert set(r["condition_check"]) == {"coarse", "true", "other_subject_reference", "zero_normal"}
     md = (out / "ablation.md").read_text()
+    # the report's numbers are the summary's
+    mean = r["summary"]["mean"]
+    for v in ("baseline", "ceiling", "aligned"):
+        assert f"| {LABELS[v]} | {mean[v]['psnr']:.2f} |" in md, v
+    assert all(np.isfinite(mean[v]["psnr"]) for v in mean)
     for text in ("Table 1", "Table 2", "+ Generator & Refiner & Examiner", "equal steps (control)", "paper 00028",
+                 "Ceiling (the truth at every draw) over the equal-steps control", "share of the ceiling's gain",
                  "Does the tex+geo Refiner use its conditions", "ms per step",
                  "detail only (lever)", "Pseudo-GT against the truth: s02"):
         assert text in md, text
@@ -69,6 +77,23 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert main(argv + ["--baseline-frames", "all,subset"]) == 1
     assert "--baseline-frames: ablation trains on one corpus variant" in capsys.readouterr().err
 
+    # another capture regime: the held-out subject re-rendered (half a turn, 3 degrees of pose noise), only some rows
+    regime = ["--coverage", "0.5", "--pose-noise", "3", "--variants", "ceiling"]
+    assert main(argv + regime) == 0
+    r3 = json.loads((out / "ablation.json").read_text())
+    name = "s02-cov0.5-noise3"
+    assert r3["subjects"] == [name] and set(r3["results"][name]) == {"ceiling"} and name not in r3["pseudo_gt_truth"]
+    assert "s02-cov0.5-noise3/GRE_s0" in r3["missing_runs"] and r3["plan"]["coverage"] == 0.5
+    from trioman.runtime.formats import load_subject
+
+    subj = load_subject(out / "subjects" / name)
+    assert subj.meta["generator"]["coverage"] == 0.5 and subj.meta["generator"]["pose_noise_deg"] == 3.0
+    summary = json.loads((out / "runs" / name / "ceiling_s0" / "eval_test" / "summary.json").read_text())
+    assert summary["poses"] == "true"  # with pose noise the avatars are scored at the true test poses
+    assert "0.5 of a full turn" in (out / "ablation.md").read_text()
+    assert main(argv + ["--variants", "baseline,magic"]) == 1
+    assert "--variants: unknown ['magic']" in capsys.readouterr().err
+
 
 def test_summary_verdicts_follow_the_numbers():
     def runs(*psnrs):
@@ -84,3 +109,14 @@ def test_summary_verdicts_follow_the_numbers():
     assert s["seed_spread_psnr"]["baseline"] == pytest.approx(0.2) and s["mean"]["GRE"]["lpips"] is None
     res["a"]["GR_none"] = runs(21.2)
     assert not summarise(res)["verdict"]["table2_order_holds"]
+    # against the ceiling: shares of its gain over the equal-steps control, the unmasked check
+    res["a"]["ceiling"] = runs(22.1)
+    s = summarise(res)
+    assert s["share_of_ceiling"]["GRE"] == pytest.approx((21.4 - 20.1) / 2.0)
+    assert s["share_of_ceiling"]["G"] == pytest.approx(0.2) and "baseline" not in s["share_of_ceiling"]
+    v = s["verdict"]
+    assert v["ceiling_gain_db"] == pytest.approx(2.0) and v["ceiling_gain_at_least_1db"] and not v["full_recovers_85_percent"]
+    assert v["unmasked_at_least_baseline"]["G"] and v["unmasked_at_least_baseline"]["ceiling"]
+    res["a"]["G"] = {"0": {**runs(20.5)["0"], "psnr_unmasked": 19.0}}
+    assert not summarise(res)["verdict"]["unmasked_at_least_baseline"]["G"]
+

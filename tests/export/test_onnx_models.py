@@ -323,9 +323,12 @@ def test_sizes_and_arguments(corpus, tmp_path):
         om.export_onnx(out=tmp_path / "x")
     with pytest.raises(om.ExportError, match="variants"):
         om.export_onnx(examiner=corpus["examiner_run"], out=tmp_path / "x", variants="fp32,int4")
+    (tmp_path / "empty_run").mkdir()
     with pytest.raises(FileNotFoundError, match="without a checkpoint"):
-        om.export_onnx(examiner=tmp_path, out=tmp_path / "x")
-    assert not (tmp_path / "x").exists()
+        om.export_onnx(examiner=tmp_path / "empty_run", out=tmp_path / "x")
+    with pytest.raises(ValueError, match="lies inside the input"):  # never written into its own input
+        om.export_onnx(examiner=corpus["examiner_run"], out=corpus["examiner_run"] / "onnx")
+    assert not (tmp_path / "x").exists() and not (corpus["examiner_run"] / "onnx").exists()
 
 
 def test_refiner_batches_hold_a_bounded_number_of_pixels():
