@@ -357,7 +357,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
                     draws: int = 12, seed: int = 7) -> dict:
     """Pseudo-GT against the truth, which a synthetic subject has: the same ``draws`` Generator candidates
     (from training frames) made into pseudo-GT by the shared augmentation step (runtime.pseudo_gt) from the
-    seed-0 baseline avatar, one kind at a time, against the subject's own mesh renderer at the draw (the
+    seed-0 baseline avatar, one kind at a time (each Refiner in ``models``), against the subject's own mesh renderer at the draw (the
     candidate's pose change on the true pose, its camera). Writes pseudo_gt_<name>.png (rows: draws; columns:
     truth, render, aligned, each Refiner). -> {"frames": masked PSNR per kind, "coverage": mean share of body
     pixels holding carried real pixels, "ms_per_draw": per kind, "avatars": per finished run (seed 0) masked PSNR
@@ -408,8 +408,8 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     base = load_run(runs / "baseline_s0")[0]
     kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None)]
     kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
-              for c in ("none", "tex", "tex+geo")]
-    if plan.detail_sigma:
+              for c in ("none", "tex", "tex+geo") if f"refiner_{c}" in models]
+    if plan.detail_sigma and "refiner_tex+geo" in models:
         kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)",
                       PseudoConfig("refined", detail_sigma=plan.detail_sigma), kinds[-1][2]))
     frames, coverage, ms, columns = {}, {}, {}, {}
@@ -424,9 +424,16 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
             coverage[label] = float(np.mean([m.coverage[0] for m in made]))
         columns[label] = images
     sheet, labels = [], []
-    for j in range(min(4, draws)):
+    shown = min(4, draws)
+    _, ys, xs = np.nonzero(mask[:shown, ..., 0] > 0)  # crop to the bodies (with a margin), enlarged to see the detail
+    pad = max(2, int(ys.max() - ys.min()) // 10) if len(ys) else 0
+    y0, y1 = (max(0, ys.min() - pad), min(H, ys.max() + pad + 1)) if len(ys) else (0, H)
+    x0, x1 = (max(0, xs.min() - pad), min(W, xs.max() + pad + 1)) if len(xs) else (0, W)
+    zoom = max(1, 256 // max(y1 - y0, 1))
+    for j in range(shown):
         for label, images in [("truth", truth + (1 - mask) * bg)] + list(columns.items()):
-            sheet.append(images[j])
+            crop = images[j][y0:y1, x0:x1]
+            sheet.append(np.repeat(np.repeat(crop, zoom, 0), zoom, 1))
             labels.append(label)
     write_png(out / f"pseudo_gt_{name}.png", contact_sheet(sheet, labels, cols=1 + len(columns)))
     avatars = {}
