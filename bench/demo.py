@@ -4,8 +4,10 @@ synth -> train (quick preset) -> eval (test and train splits) -> export the avat
 the runtime (numpy + onnxruntime, no torch), plus a turntable MP4 of the subject's posed mesh ->
 triplets of the trained avatar -> a small Refiner and Examiner trained on the subject's own training
 frames (a demo of the loop; ``trioman bench models`` trains them on a corpus of subjects) -> ONNX
-export (fp32 + int8) -> ``augment`` with the runtime -> an avatar trained on the training frames plus
-the pseudo-GT frames (``trioman train --extra-frames``), evaluated on the test split like the first.
+export (fp32 + int8) -> ``augment`` with the runtime -> an avatar trained with online augmentation of the
+kind that measured best, aligned pseudo-GT (``trioman train --augment aligned``: the avatar's renders at
+Generator draws with real pixels carried through the body mesh; docs/augmentation.md), evaluated on the
+test split like the first.
 
 Each stage prints one line as it ends: its name, wall time and peak resident memory; the run ends
 with where the outputs are, baseline vs augmented test PSNR and the overall peak.
@@ -54,7 +56,7 @@ def run_demo(cfg: DemoConfig) -> None:
     lpips = load_lpips_or_say_why("demo")
     base = _baseline(cfg, out, log, lpips, progress)
     aug = _augment_stage(cfg, out, base["run"], base["avatar_dir"], log, progress)
-    final = _augmented_avatar(cfg, out, aug["out"], log, lpips, progress)
+    final = _augmented_avatar(cfg, out, log, lpips, progress)
     _report(base, aug, final)
     say(f"done in {log.seconds:.0f} s; peak RSS {mib(log.peak_rss):.0f} MiB (the highest stage)")
 
@@ -135,17 +137,17 @@ def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, 
     return {"onnx": onnx, "export": report, "out": out / "augmented", "result": result}
 
 
-def _augmented_avatar(cfg: DemoConfig, out: Path, extra: Path, log: StageLog, lpips,
-                      progress: bool) -> dict:
-    """An avatar trained on the training frames plus the pseudo-GT frames, evaluated on the test split."""
+def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
+    """An avatar trained with online aligned augmentation (``--augment aligned``), evaluated on the test split."""
     import shutil
 
     from trioman.toolkit.evaluate import evaluate
+    from trioman.toolkit.train.augmentation import AugmentConfig
     from trioman.toolkit.train.loop import train
 
     run_aug = out / "run_augmented"
     shutil.rmtree(run_aug, ignore_errors=True)
-    train_cfg = _quick_preset(cfg, extra_frames=str(extra.resolve()))
+    train_cfg = _quick_preset(cfg, augment=AugmentConfig(mode="aligned"))
     with log.stage("train augmented"):
         train(out / "subject", run_aug, train_cfg, progress=progress, lpips=lpips)
     with log.stage("eval augmented"):
@@ -177,6 +179,6 @@ def _report(base: dict, aug: dict, final: dict) -> None:
         f"{s['source_frames']} source frames, {t['total']:.0f} ms per source frame; report {aug['out'] / 'augment.json'}, "
         f"scores {aug['out'] / 'scores.png'})")
     before, after = base["test"]["mean"]["psnr"], final["test"]["mean"]["psnr"]
-    say(f"augmented run {final['run']} (trioman train {subject.root} --extra-frames {aug['out']})")
+    say(f"augmented run {final['run']} (trioman train {subject.root} --augment aligned)")
     say(f"test PSNR (masked): baseline {before:.2f} dB, augmented {after:.2f} dB ({after - before:+.2f} dB); "
         f"report {final['run'] / 'eval_test' / 'report.md'}")

@@ -40,7 +40,7 @@ def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
 
     run_aug = out / "run_augmented"
     train_cfg = json.loads((run_aug / "config.json").read_text())["train"]
-    assert train_cfg["extra_frames"] == str((out / "augmented").resolve()) and train_cfg["iterations"] == 30
+    assert train_cfg["augment"]["mode"] == "aligned" and train_cfg["iterations"] == 30
     psnr = PSNR_LINE.search(printed)
     assert psnr and psnr.group(3) == str(run_aug / "eval_test" / "report.md")
     baseline, augmented = float(psnr.group(1)), float(psnr.group(2))
