@@ -49,9 +49,10 @@ from trioman import __version__
 from trioman.runtime.aligned import Aligner, SourceViews
 from trioman.runtime.formats import FormatError, load_avatar, load_subject
 from trioman.runtime.formats.avatar import AVATAR_JSON, sha256_file
-from trioman.runtime.formats.common import write_npz
+from trioman.runtime.formats.common import read_json, write_npz
 from trioman.runtime.formats.subject import (
-    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, check_frames, check_subject_meta,
+    BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, check_frame_name,
+    check_frames, check_subject_meta,
 )
 from trioman.runtime.generator import GROUPS, GeneratorConfig, joint_groups, sample
 from trioman.runtime.image_io import (
@@ -434,11 +435,12 @@ def _run(out: Path, subj: Any, selection: list[int], step: _Step, earlier: list[
 
 def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, Any]], settings: dict[str, Any],
            with_examiner: bool, threshold: float | None) -> dict[str, Any]:
-    """Move every shard's frames and records into ``out`` (a record last, so a merge can be rerun), then
-    assemble ``out`` from the records in selection order and remove out/shards."""
+    """Check every shard's records and files, then move them into ``out`` (a record last, so a merge can be
+    rerun), assemble ``out`` from the records in selection order and remove out/shards. A malformed record
+    or a missing file is a FormatError naming it, raised before anything moves."""
     start = time.perf_counter()
-    for d in (out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR, out / WEIGHTS_DIR):
-        d.mkdir(parents=True, exist_ok=True)
+    index_of = {str(subj.frame_names[i]): int(i) for i in selection.tolist()}
+    moves: list[tuple[Path, Path]] = []
     for rec in shards:
         folder = out / SHARDS_DIR / Shard.parse(rec["shard"]).name
         for name in rec["items"]:
@@ -447,10 +449,14 @@ def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, A
                 if _record_path(out, name).is_file():  # moved by an earlier merge
                     continue
                 raise ValueError(f"--merge: shard {rec['shard']} has no record for frame {name} ({src})")
-            for f in json.loads(src.read_text(encoding="utf-8"))["frames"]:
+            for f in check_record(read_json(src), src, folder, name, index_of.get(name, -1))["frames"]:
                 for sub in (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ()):
-                    os.replace(folder / sub / f"{f['name']}.png", out / sub / f"{f['name']}.png")
-            os.replace(src, _record_path(out, name))
+                    moves.append((folder / sub / f"{f['name']}.png", out / sub / f"{f['name']}.png"))
+            moves.append((src, _record_path(out, name)))
+    for d in (out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR, out / WEIGHTS_DIR):
+        d.mkdir(parents=True, exist_ok=True)
+    for src, dst in moves:
+        os.replace(src, dst)
     records = []
     for i in selection.tolist():
         rec = _read_record(out, str(subj.frame_names[i]), i)
@@ -462,6 +468,47 @@ def _merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, A
     result = _finish(out, subj, records, settings, header, with_examiner, threshold, 0, time.perf_counter() - start)
     shutil.rmtree(out / SHARDS_DIR)
     return result
+
+
+def check_record(rec: Any, path: Path, folder: Path, name: str, index: int) -> dict[str, Any]:
+    """A source frame's record as augment writes it, its frames' files present in ``folder``: -> ``rec``; a
+    FormatError naming ``path`` and the field otherwise (a merge reads records another job wrote)."""
+    def fail(field: str, why: str) -> FormatError:
+        return FormatError(f"{path}: {field}: {why}")
+
+    if not isinstance(rec, dict):
+        raise fail("record", f"expected a JSON object, got {type(rec).__name__}")
+    if rec.get("version") != AUGMENT_VERSION:
+        raise fail("version", f"expected {AUGMENT_VERSION}, got {rec.get('version')!r}")
+    source = rec.get("source")
+    if not isinstance(source, dict) or source.get("name") != name or source.get("index") != index:
+        raise fail("source", f"expected frame {name!r} (index {index}), got {source!r}")
+    if isinstance(rec.get("seed"), bool) or not isinstance(rec.get("seed"), int):
+        raise fail("seed", f"expected an integer, got {rec.get('seed')!r}")
+    candidates, frames = rec.get("candidates"), rec.get("frames")
+    if not isinstance(candidates, list) or not isinstance(frames, list):
+        raise fail("candidates/frames", "expected lists")
+    for k, c in enumerate(candidates):
+        score = c.get("score") if isinstance(c, dict) else "not an object"
+        if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float))
+                                  or not 0.0 <= score <= 1.0):
+            raise fail(f"candidates[{k}].score", f"expected null or a number in [0, 1], got {score!r}")
+    shapes = {"pose": None, "trans": (3,), "viewmat": (4, 4), "K": (3, 3)}
+    for k, f in enumerate(frames):
+        if not isinstance(f, dict):
+            raise fail(f"frames[{k}]", "expected an object")
+        check_frame_name(f.get("name"), path, f"frames[{k}].name")
+        for key, shape in shapes.items():
+            try:
+                a = np.asarray(f.get(key), dtype=np.float64)
+            except (TypeError, ValueError):
+                raise fail(f"frames[{k}].{key}", "expected numbers") from None
+            if (shape is not None and a.shape != shape) or a.size == 0 or not np.isfinite(a).all():
+                raise fail(f"frames[{k}].{key}", f"expected finite numbers of shape {shape or '[J, 3]'}, got {list(a.shape)}")
+        for sub in (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ()):
+            if not (folder / sub / f"{f['name']}.png").is_file():
+                raise fail(f"frames[{k}]", f"its file {folder / sub / (f['name'] + '.png')} is missing")
+    return rec
 
 
 def _augment_frame(subj: Any, i: int, step: _Step, out: Path, groups: np.ndarray) -> dict:

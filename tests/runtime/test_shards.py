@@ -33,6 +33,33 @@ def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, ca
     assert snapshot(out) == straight.files  # byte-identical images, masks, frames.npz, subject.json, histogram
 
 
+@pytest.mark.parametrize("corrupt, message", [
+    (lambda rec: {**rec, "candidates": [{**rec["candidates"][0], "score": float("nan")}] + rec["candidates"][1:]},
+     "is not valid JSON"),  # NaN written as JSON's NaN
+    (lambda rec: {**rec, "candidates": [{**rec["candidates"][0], "score": 3.0}] + rec["candidates"][1:]},
+     r"candidates\[0\]\.score: expected null or a number in \[0, 1\], got 3.0"),
+    (lambda rec: {**rec, "frames": [{**rec["frames"][0], "name": "../../../x"}]}, r"frames\[0\]\.name"),
+    (lambda rec: {**rec, "seed": "abc"}, "seed: expected an integer"),
+    (None, "malformed JSON"),  # truncated
+])
+def test_a_corrupt_shard_record_is_named_and_nothing_moves(inputs, tmp_path, capsys, corrupt, message):  # noqa: F811
+    import json
+    import re
+
+    out = tmp_path / "sharded"
+    for i in range(2):
+        assert main(argv(inputs, out, "--shard", f"{i}/2")) == 0
+    capsys.readouterr()
+    record = sorted((out / "shards" / "1-of-2" / "records").glob("*.json"))[0]
+    text = record.read_text()
+    record.write_text(text[: len(text) // 2] if corrupt is None else json.dumps(corrupt(json.loads(text))))
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    assert main(argv(inputs, out, "--merge")) == 1
+    err = capsys.readouterr().err
+    assert str(record) in err and len(re.findall(message, err)) == 1 and err.count("\n") == 1, err
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before  # nothing moved, no augment.json
+
+
 def test_shard_rule_and_parse():
     assert Shard.parse("1/3").take(list("abcdefg")) == ["b", "e"]
     assert Shard.parse(" 0/1 ").name == "0-of-1"
