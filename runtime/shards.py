@@ -121,6 +121,10 @@ def shard_run(out: str | Path, shard: Shard, settings: Mapping[str, Any], items:
         lock.unlink(missing_ok=True)
 
 
+# augment keeps an interrupted shard's finished frames only with --resume (synth-corpus skips finished subjects itself)
+_RERUN = " (augment: with --resume as well)"
+
+
 def check_shards(out: str | Path, settings: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The records of every shard of ``out``, in shard order, after checking that all N exist, finished
     and ran with ``settings``; a ValueError naming --merge and the shard otherwise."""
@@ -144,10 +148,11 @@ def check_shards(out: str | Path, settings: Mapping[str, Any]) -> list[dict[str,
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise ValueError(f"--merge: shard {shard}: unreadable record {path} ({err})") from None
         if status == "failed":
-            raise ValueError(f"--merge: shard {shard} failed ({rec.get('error')}); run it again with --shard {shard}")
+            raise ValueError(f"--merge: shard {shard} failed ({rec.get('error')}); run it again with --shard {shard}"
+                             f"{_RERUN}")
         if status != "complete":
             raise ValueError(f"--merge: shard {shard} did not finish (status {status!r} in {path}); "
-                             f"run it again with --shard {shard}")
+                             f"run it again with --shard {shard}{_RERUN}")
         theirs = rec.get("settings", {})
         for key in sorted(set(settings) | set(theirs)):
             if theirs.get(key) != settings.get(key):
