@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from trioman.runtime.formats import FormatError, Subject, save_subject
-from trioman.runtime.formats.common import read_json  # noqa: F401  (the one JSON reader; the importers take it from here)
+from trioman.runtime.formats.common import read_json as _read_json
 from trioman.runtime.formats.subject import SUBJECT_FOLDER
 from trioman.runtime.image_io import check_folder_target, read_png
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
@@ -48,10 +48,57 @@ class FrameRecord:
     focal: np.ndarray  # [2] pixels
     princpt: np.ndarray  # [2] pixels
     in_camera: bool = False  # params given in the camera frame (ExAvatar's NeuMan, Custom, fitters)
+    mask_file: Path | None = None  # the file ``mask`` reads (named when its size differs)
 
 
 # --------------------------------------------------------------------------------------------------
 # readers
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file through the one reader (``formats.common.read_json``: NaN and Infinity refused). A file holding
+    NaN or Infinity, as Python's ``json.dump`` writes a non-finite float, is refused naming the field that holds it
+    (a top-level key, or the item of a top-level list)."""
+    try:
+        return _read_json(path)
+    except FormatError as err:
+        if "is not valid JSON" in str(err):
+            where = _non_finite_field(path)
+            if where is not None:
+                raise FormatError(f"{path}: {where}: NaN or Infinity, which JSON does not allow (a non-finite "
+                                  f"value)") from None
+        raise
+
+
+def _non_finite_field(path: Path) -> str | None:
+    """The first top-level key (or list item) of a JSON file whose value holds NaN or Infinity; None if none is found."""
+    import json
+    import math
+
+    def bad(value: Any) -> bool:
+        if isinstance(value, float):
+            return not math.isfinite(value)
+        if isinstance(value, dict):
+            return any(bad(v) for v in value.values())
+        return isinstance(value, list) and any(bad(v) for v in value)
+
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError, RecursionError, OSError):
+        return None
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else []
+    for key, value in items:
+        if bad(value):
+            return str(key) if isinstance(data, dict) else f"item {key}"
+    return None
+
+
+def focal_array(where: Path, field: str, value: Any) -> np.ndarray:
+    """A focal length (fx, fy) in pixels: two finite numbers > 0."""
+    focal = array(where, field, value, (2,))
+    if not np.all(focal > 0):
+        raise FormatError(f"{where}: {field}: focal length must be > 0, got {focal.tolist()}")
+    return focal
 
 
 def read_pickle(path: Path, allow_pickle: bool) -> Any:
@@ -195,17 +242,19 @@ def images_by_index(folder: Path, what: str) -> dict[int, Path]:
 
 
 def read_split_list(path: Path) -> list[int]:
-    """A split list (``00012.png`` or ``12`` per line) -> frame numbers."""
+    """A split list (``00012.png`` or ``12`` per line) -> frame numbers; a frame listed twice -> FormatError."""
     if not path.is_file():
         raise FormatError(f"{path}: missing file")
-    out = []
+    first_line: dict[int, int] = {}
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if line.strip():
             idx = frame_index(Path(line.strip()))
             if idx is None:
                 raise FormatError(f"{path}: line {n}: {line.strip()!r} names no frame number")
-            out.append(idx)
-    return out
+            if idx in first_line:
+                raise FormatError(f"{path}: line {n}: frame {idx} is listed twice (first on line {first_line[idx]})")
+            first_line[idx] = n
+    return list(first_line)
 
 
 def read_colmap(sparse: Path) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]]]:
@@ -223,7 +272,9 @@ def read_colmap(sparse: Path) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[n
     if len(tok) < 4 or tok[1] not in ("PINHOLE", "SIMPLE_PINHOLE") or len(params) != (4 if tok[1] == "PINHOLE" else 3):
         raise FormatError(f"{cams_path}: camera: expected 'ID PINHOLE W H fx fy cx cy' (or SIMPLE_PINHOLE W H f cx cy), "
                           f"got {' '.join(tok)!r}")
-    focal = np.array(params[:2] if tok[1] == "PINHOLE" else params[:1] * 2)
+    names = "fx fy cx cy" if tok[1] == "PINHOLE" else "f cx cy"
+    params = array(cams_path, f"camera parameters: {names}", params, (len(params),)).tolist()
+    focal = focal_array(cams_path, "camera parameters", params[:2] if tok[1] == "PINHOLE" else params[:1] * 2)
     princpt = np.array(params[-2:])
     poses = {}
     for ln in _lines(images_path):
@@ -375,11 +426,12 @@ def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], genera
     def frames() -> Iterator[tuple[np.ndarray, np.ndarray]]:
         for r in records:
             img, mask = read_image(r.image), r.mask()
-            if img.shape[:2] != (H, W) or mask.shape != (H, W):
-                bad = r.image if img.shape[:2] != (H, W) else f"mask of frame {r.name!r}"
-                raise FormatError(f"{bad}: size {(img if bad == r.image else mask).shape[1]}x"
-                                  f"{(img if bad == r.image else mask).shape[0]} (W x H) differs from the first "
-                                  f"frame's {W}x{H}")
+            if img.shape[:2] != (H, W):
+                raise FormatError(f"{r.image}: size {img.shape[1]}x{img.shape[0]} (W x H) differs from the first "
+                                  f"frame's image {W}x{H} ({records[0].image.name})")
+            if mask.shape != (H, W):
+                raise FormatError(f"{r.mask_file or 'the mask'}: mask of frame {r.name!r}: size {mask.shape[1]}x"
+                                  f"{mask.shape[0]} (W x H) differs from the first frame's image {W}x{H}")
             yield img * mask[..., None], mask
 
     a, b = itertools.tee(frames())

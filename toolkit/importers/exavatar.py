@@ -36,8 +36,8 @@ import numpy as np
 from trioman.runtime.formats import FormatError, Subject
 from trioman.toolkit.body.smplx_model import NUM_JOINTS, NUM_VERTICES, SMPLXBody
 from trioman.toolkit.importers.common import (
-    FrameRecord, array, check_target, files_by_index, images_by_index, pelvis_per_beta, read_colmap, read_gray,
-    read_json, read_npy, read_npz, read_pickle, read_split_list, smplx_params, write_subject,
+    FrameRecord, array, check_target, files_by_index, focal_array, images_by_index, pelvis_per_beta, read_colmap,
+    read_gray, read_json, read_npy, read_npz, read_pickle, read_split_list, smplx_params, write_subject,
 )
 
 DATASETS = ("xhumans", "neuman", "custom")
@@ -132,6 +132,7 @@ def _take_frames(take: Path) -> list[tuple[int, Path, Path, np.ndarray, np.ndarr
         if key not in cams:
             raise FormatError(f"{cams_path}: {key}: missing array")
     intr = array(cams_path, "intrinsic", cams["intrinsic"], (3, 3))
+    focal_array(cams_path, "intrinsic: fx, fy", intr[[0, 1], [0, 1]])
     extr = np.asarray(cams["extrinsic"], dtype=np.float64)
     if extr.ndim != 3 or extr.shape[1:] not in ((4, 4), (3, 4)):
         raise FormatError(f"{cams_path}: extrinsic: expected shape [F, 4, 4], got {list(extr.shape)}")
@@ -190,7 +191,12 @@ def read_xhumans(subject_dir: Path, allow_pickle: bool, fits: str = "auto", num_
                                   f"identity's fits")
             params_dir = take / EXAVATAR_TAKE_FITS
             found = files_by_index(params_dir, (".json",), "SMPL-X fits (FRAME.json)")
-            for idx, image, depth, intr, R, t in _take_frames(take):
+            frames = _take_frames(take)
+            extra = sorted(set(found) - {f[0] for f in frames})
+            if extra:
+                raise FormatError(f"{found[extra[0]]}: a fit for frame {extra[0]}, which has no image in "
+                                  f"{take / 'render' / 'image'} (ExAvatar's fitting writes one per image of the take)")
+            for idx, image, depth, intr, R, t in frames:
                 if idx not in found:
                     raise FormatError(f"{params_dir}: no fit for frame {idx} ({image.name}): ExAvatar's fitting "
                                       f"writes one per image of the take ({idx}.json)")
@@ -198,7 +204,7 @@ def read_xhumans(subject_dir: Path, allow_pickle: bool, fits: str = "auto", num_
                 records.append(FrameRecord(
                     name=f"{take.name}_{idx:06d}", split=split, sequence=take.name, image=image,
                     mask=_depth_mask(depth), params=smplx_params(fit, read_json(fit), EXAVATAR_KEYS), R=R, t=t,
-                    focal=intr[[0, 1], [0, 1]], princpt=intr[[0, 1], [2, 2]], in_camera=True))
+                    focal=intr[[0, 1], [0, 1]], princpt=intr[[0, 1], [2, 2]], in_camera=True, mask_file=depth))
         assert identity is not None and first is not None
         identity.fits = {"source": "exavatar", "files": f"TAKE/{EXAVATAR_TAKE_FITS.as_posix()}/N.json",
                          "identity": str(first.relative_to(subject_dir)), "takes": [t.name for _, t in fitted],
@@ -220,7 +226,7 @@ def read_xhumans(subject_dir: Path, allow_pickle: bool, fits: str = "auto", num_
             frame_betas.append(mean_betas if b is None else array(fit, "betas", b, mean_betas.shape))
             records.append(FrameRecord(
                 name=f"{take.name}_{idx:06d}", split=split, sequence=take.name, image=image, mask=_depth_mask(depth),
-                params=params, R=R, t=t, focal=intr[[0, 1], [0, 1]], princpt=intr[[0, 1], [2, 2]]))
+                params=params, R=R, t=t, focal=intr[[0, 1], [0, 1]], princpt=intr[[0, 1], [2, 2]], mask_file=depth))
     identity = Identity(betas=mean_betas, gender=gender, frame_betas=frame_betas, fits={
         "source": "xhumans", "files": "TAKE/SMPLX/mesh-fNNNNN_smplx.pkl", "identity": "gender.txt, mean_shape_smplx.npy",
         "takes": [t.name for _, t in takes], "left_out": []})
@@ -250,11 +256,15 @@ def _inverted_mask(path: Path) -> Callable[[], np.ndarray]:
 
 
 def _split_frames(lists: dict[str, Path], required: tuple[str, ...]) -> list[tuple[str, int, Path]]:
-    out = []
+    """(split, frame number, list file) of every listed frame, by frame number; a frame in two lists -> FormatError."""
+    listed: dict[int, tuple[str, Path]] = {}
     for split, path in lists.items():
         if split in required or path.is_file():
-            out += [(split, idx, path) for idx in read_split_list(path)]
-    return sorted(out, key=lambda s: s[1])
+            for idx in read_split_list(path):
+                if idx in listed:
+                    raise FormatError(f"{path}: frame {idx} is also in {listed[idx][1]}; a frame belongs to one split")
+                listed[idx] = (split, path)
+    return [(split, idx, path) for idx, (split, path) in sorted(listed.items())]
 
 
 def _need(table: dict[int, Path], idx: int, folder: Path, list_path: Path, what: str) -> Path:
@@ -277,12 +287,15 @@ def read_neuman(seq_dir: Path) -> list[FrameRecord]:
         if idx not in cams:
             raise FormatError(f"{list_path}: frame {idx}: no camera for {image.name} in {seq_dir / 'sparse' / 'images.txt'}")
         fit = _need(fits, idx, params_dir, list_path, f"SMPL-X fit ({idx}.json)")
-        mask = (_inverted_mask(segs[idx]) if split == "test" and idx in segs
-                else _binary_mask(_need(masks, idx, seq_dir / "masks", list_path, "mask")))
+        if split == "test" and idx in segs:  # NeuMan's evaluation masks, as ExAvatar evaluates
+            mask_file, mask = segs[idx], _inverted_mask(segs[idx])
+        else:
+            mask_file = _need(masks, idx, seq_dir / "masks", list_path, "mask")
+            mask = _binary_mask(mask_file)
         records.append(FrameRecord(
             name=image.stem, split=split, sequence=seq_dir.name, image=image, mask=mask,
             params=smplx_params(fit, read_json(fit), EXAVATAR_KEYS), R=cams[idx][0], t=cams[idx][1],
-            focal=focal, princpt=princpt, in_camera=True))
+            focal=focal, princpt=princpt, in_camera=True, mask_file=mask_file))
     return records
 
 
@@ -311,13 +324,13 @@ def read_custom(video_dir: Path) -> list[FrameRecord]:
                 if key not in cam:
                     raise FormatError(f"{cam_path}: {key}: missing field")
             R, t = array(cam_path, "R", cam["R"], (3, 3)), array(cam_path, "t", cam["t"], (3,))
-            focal, princpt = array(cam_path, "focal", cam["focal"], (2,)), array(cam_path, "princpt", cam["princpt"], (2,))
+            focal, princpt = focal_array(cam_path, "focal", cam["focal"]), array(cam_path, "princpt", cam["princpt"], (2,))
         fit = _need(fits, idx, params_dir, list_path, f"SMPL-X fit ({idx}.json)")
+        mask_file = _need(masks, idx, video_dir / "masks", list_path, "mask")
         records.append(FrameRecord(
-            name=image.stem, split=split, sequence=video_dir.name, image=image,
-            mask=_binary_mask(_need(masks, idx, video_dir / "masks", list_path, "mask")),
+            name=image.stem, split=split, sequence=video_dir.name, image=image, mask=_binary_mask(mask_file),
             params=smplx_params(fit, read_json(fit), EXAVATAR_KEYS), R=R, t=t, focal=focal, princpt=princpt,
-            in_camera=True))
+            in_camera=True, mask_file=mask_file))
     return records
 
 

@@ -20,8 +20,8 @@ import numpy as np
 from trioman.runtime.formats import FormatError, Subject
 from trioman.toolkit.body.smplx_model import SMPLXBody
 from trioman.toolkit.importers.common import (
-    FrameRecord, array, check_target, images_by_index, pelvis_per_beta, read_gray, read_json, read_npz, smplx_params,
-    write_subject,
+    FrameRecord, array, check_target, focal_array, images_by_index, pelvis_per_beta, read_gray, read_json, read_npz,
+    smplx_params, write_subject,
 )
 
 SMPLERX_KEYS = {"root": "global_orient", "body": "body_pose", "jaw": "jaw_pose", "leye": "leye_pose",
@@ -102,8 +102,8 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
             name=images[idx].stem, split="test" if test_every and n % test_every == test_every - 1 else "train",
             sequence=frames_dir.name or "video", image=images[idx],
             mask=lambda p=mask_path: (read_gray(p) > 0.5).astype(np.float32), params=params, R=np.eye(3),
-            t=np.zeros(3), focal=array(meta_path, "focal", meta["focal"], (2,)),
-            princpt=array(meta_path, "princpt", meta["princpt"], (2,)), in_camera=True))
+            t=np.zeros(3), focal=focal_array(meta_path, "focal", meta["focal"]),
+            princpt=array(meta_path, "princpt", meta["princpt"], (2,)), in_camera=True, mask_file=mask_path))
     mean_betas = np.mean(betas, axis=0)
     body = SMPLXBody(model_dir, gender=gender, num_betas=len(mean_betas), flat_hand_mean=flat_hand_mean, betas=mean_betas)
     # One shape for all frames: keep each frame's pelvis where its own betas put it (the posed pelvis is the rest
