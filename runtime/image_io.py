@@ -18,6 +18,7 @@ import re
 import secrets
 import shutil
 import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterable, Iterator
@@ -340,6 +341,51 @@ def write_png(path: PathLike, img: np.ndarray) -> None:
     atomic_write_bytes(path, encode_png(img, name=str(path)))
 
 
+@contextlib.contextmanager
+def quiet_opencv() -> Iterator[None]:
+    """OpenCV's own log (``[ WARN ]`` and libpng's messages) silenced inside the block.
+
+    A decoder that fails says so through its return value and the caller's one-line error; OpenCV's
+    warnings would otherwise reach the terminal first. Errors (cv2.error) still raise.
+    """
+    logging = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging is None or not hasattr(logging, "setLogLevel"):
+        yield
+        return
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_ERROR if level > logging.LOG_LEVEL_ERROR else level)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(level)
+
+
+def _png_damage(data: np.ndarray) -> str | None:
+    """Why a PNG's bytes are damaged (a chunk past the end, a chunk's CRC wrong, no IEND), or None
+    (whole, or not a PNG).
+
+    Only the chunk framing is checked (zlib's CRC-32, as libpng does); the pixels are left to the
+    decoder. Checked here so that the error is one line: libpng prints its own complaint to stderr.
+    """
+    raw = data.tobytes() if data.size >= 8 else b""
+    if raw[:8] != _PNG_SIGNATURE:
+        return None
+    pos, size = 8, len(raw)
+    while pos + 8 <= size:
+        length, kind = struct.unpack(">I4s", raw[pos:pos + 8])
+        end = pos + 12 + length
+        name = kind.decode("latin-1")
+        if end > size:
+            return f"truncated PNG: chunk {name!r} at byte {pos} needs {end} bytes, the file has {size}"
+        (crc,) = struct.unpack(">I", raw[end - 4:end])
+        if zlib.crc32(raw[pos + 4:end - 4]) != crc:
+            return f"corrupt PNG: chunk {name!r} at byte {pos} fails its CRC"
+        if kind == b"IEND":
+            return None
+        pos = end
+    return f"truncated PNG: no IEND chunk in its {size} bytes"
+
+
 def read_png(path: PathLike, mode: str | None = None) -> np.ndarray:
     """Read an image file -> float32 in [0, 1]: RGB [H, W, 3] or gray [H, W].
 
@@ -352,7 +398,11 @@ def read_png(path: PathLike, mode: str | None = None) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: image file not found")
     data = np.fromfile(path, dtype=np.uint8)  # works for non-ASCII paths, unlike cv2.imread
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    damage = _png_damage(data)
+    if damage:
+        raise ValueError(f"{path}: not a readable image ({damage})")
+    with quiet_opencv():
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise ValueError(f"{path}: not a readable image (corrupt or unsupported, {data.size} bytes)")
     if img.dtype == np.uint8:

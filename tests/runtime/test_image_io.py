@@ -113,6 +113,41 @@ def test_read_png_errors_name_the_path(tmp_path):
         png_header(tmp_path / "missing.png")
 
 
+
+def _damaged_pngs(tmp_path):
+    write_png(tmp_path / "whole.png", np.random.default_rng(0).random((32, 32, 3), dtype=np.float32))
+    data = (tmp_path / "whole.png").read_bytes()
+    (tmp_path / "half.png").write_bytes(data[:len(data) // 2])
+    (tmp_path / "no_iend.png").write_bytes(data[:-12])
+    flipped = bytearray(data)
+    flipped[60:80] = bytes(b ^ 0xFF for b in flipped[60:80])
+    (tmp_path / "flipped.png").write_bytes(bytes(flipped))
+    return {"half.png": "truncated PNG: chunk 'IDAT'", "no_iend.png": "truncated PNG: no IEND",
+            "flipped.png": "corrupt PNG: chunk 'IDAT' at byte 33 fails its CRC"}
+
+
+def test_a_damaged_png_is_one_line_and_opencv_says_nothing(tmp_path, capfd):
+    """Issue 26 (minor): a truncated PNG printed OpenCV's '[ WARN ]' and libpng's line before the error."""
+    for name, why in _damaged_pngs(tmp_path).items():
+        with pytest.raises(ValueError) as err:
+            read_png(tmp_path / name)
+        assert str(err.value).startswith(f"{tmp_path / name}: not a readable image (")
+        assert why in str(err.value) and "\n" not in str(err.value)
+    assert read_png(tmp_path / "whole.png").shape == (32, 32, 3)
+    out, errs = capfd.readouterr()
+    assert out == "" and errs == ""
+
+
+def test_opencv_is_quiet_while_it_decodes(tmp_path, capfd, monkeypatch):
+    """The decoder's own warnings are silenced too, for damage the chunk check does not see."""
+    _damaged_pngs(tmp_path)
+    level = cv2.utils.logging.getLogLevel()
+    monkeypatch.setattr(image_io, "_png_damage", lambda data: None)
+    with pytest.raises(ValueError, match=r"half\.png: not a readable image \(corrupt or unsupported"):
+        read_png(tmp_path / "half.png")
+    assert capfd.readouterr().err == ""
+    assert cv2.utils.logging.getLogLevel() == level
+
 def test_write_png_missing_folder(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nope"):
         write_png(tmp_path / "nope" / "a.png", np.zeros((2, 2)))
