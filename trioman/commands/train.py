@@ -76,9 +76,11 @@ def run(args: argparse.Namespace) -> int:
     if augment is not None:
         overrides["augment"] = augment
     cfg = preset(args.preset, **overrides)
-    run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet,
-                    lpips=lpips.load_lpips_or_say_why("train"),
+    model = lpips.load_lpips()  # a named folder without the weights is an error before any work
+    run_dir = train(args.subject, args.out, cfg, resume=args.resume, progress=not args.quiet, lpips=model,
                     extend_iterations=args.extend_iterations)
+    if model is None:  # said once the run has trained, never before an error about the inputs
+        print(f"train: {lpips.NOT_FOUND_MESSAGE}")
     print(f"train: run {run_dir} (checkpoints in {Path(run_dir) / 'checkpoints'}, log {Path(run_dir) / 'train_log.csv'})")
     return 0
 

@@ -225,15 +225,36 @@ def test_kill_9_and_resume_gives_the_weights_of_an_uninterrupted_run(subject, tm
 def test_command_line_resume_refusal_and_extension(subject, tmp_path, capsys, monkeypatch):
     from trioman.cli import main
 
-    monkeypatch.setattr("trioman.toolkit.lpips.load_lpips_or_say_why", lambda command: None)
+    monkeypatch.delenv("TRIOMAN_LPIPS_DIR", raising=False)
     out = str(tmp_path / "cli")
     assert main(["train", str(subject), "--out", out, "--iterations", "2", "--quiet"]) == 0
+    assert capsys.readouterr().out.count("LPIPS not computed") == 1  # once the run has trained
     assert main(["train", str(subject), "--out", out, "--iterations", "2", "--resume", "--seed", "7", "--quiet"]) == 1
-    err = capsys.readouterr().err
+    said = capsys.readouterr()
+    assert said.out == "" and len(said.err.strip().splitlines()) == 1  # the refusal alone, no LPIPS note
+    err = said.err
     assert "Traceback" not in err and "the training config differs from the run's (seed: 0 -> 7)" in err
     assert main(["train", str(subject), "--out", out, "--resume", "--extend-iterations", "3", "--quiet"]) == 0
     assert json.loads((tmp_path / "cli" / "config.json").read_text())["extensions"][0]["iterations"] == 3
 
+
+
+
+def test_an_error_before_training_is_one_line_without_the_lpips_note(tmp_path, capsys, monkeypatch):
+    """Issue 26 (minor): 'LPIPS not computed' came before every error, so errors were two lines."""
+    from trioman.cli import main
+
+    monkeypatch.delenv("TRIOMAN_LPIPS_DIR", raising=False)
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "config.json").write_text("{}")
+    out = str(tmp_path / "run")
+    for argv in (["train", str(tmp_path / "missing"), "--out", out], ["train", str(tmp_path), "--out", str(taken)],
+                 ["train", str(tmp_path), "--out", out, "--extend-iterations", "3"],
+                 ["train", str(tmp_path), "--out", out, "--extra-weight", "2"]):
+        assert main([*argv, "--quiet"]) == 1
+        said = capsys.readouterr()
+        assert said.out == "" and len(said.err.strip().splitlines()) == 1, (argv, said)
 
 def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_path, monkeypatch):
     # torch.save to a file reported a full disk as "RuntimeError: ... unexpected pos" (issue 18, case 2)
