@@ -148,3 +148,41 @@ def test_examiner_keeps_the_step_validated_best_on_held_out_training_subjects(co
         fit_examiner(corpus, tmp_path / "ex0", fit=FitConfig(steps=2, batch=2, crop=None), validate_every=0)
     with pytest.raises(ValueError, match=r"validation_subjects: must be an integer in \[0, 1\]"):
         fit_examiner(corpus, tmp_path / "ex2", fit=FitConfig(steps=2, batch=2, crop=None), validation_subjects=2)
+
+
+def _one_line_error(capsys) -> str:
+    said = capsys.readouterr()
+    assert said.out == "" and len(said.err.strip().splitlines()) == 1, said
+    return said.err.strip()
+
+
+def test_a_resume_with_another_crop_names_the_fields_and_the_command(corpus, tmp_path, capsys, monkeypatch):
+    """Issue 26 (minor): a resume refused for a changed --crop dumped both whole configs."""
+    from trioman.toolkit.examiner import examiner_config
+    from trioman.toolkit.model_training import REFINER_SIZES
+    from trioman.toolkit.refiner import RefinerConfig
+    from trioman.toolkit.train.checkpoint import save_checkpoint
+
+    monkeypatch.delenv("TRIOMAN_LPIPS_DIR", raising=False)
+    run = tmp_path / "ref"  # a run started with --crop 16 --conditions tex (its checkpoint, weights aside)
+    config = RefinerConfig(image_size=16, conditions="tex", **REFINER_SIZES["compact"]).to_dict()
+    save_checkpoint(run, 2, {"step": 2, "model": {}, "config": config})
+    argv = ["train-refiner", "--corpus", str(corpus), "--out", str(run), "--steps", "4", "--batch", "2", "--crop", "32"]
+    assert main([*argv, "--conditions", "tex"]) == 1
+    err = _one_line_error(capsys)
+    assert "the run's Refiner differs from this one (image_size: 16 -> 32); resume it with" in err
+    assert f"`trioman train-refiner --corpus {corpus} --out {run} --conditions tex --steps 4 --batch 2 --crop 16`" in err
+    assert main(argv) == 1  # two fields differ: both named, nothing else
+    err = _one_line_error(capsys)
+    assert "(image_size: 16 -> 32, conditions: 'tex' -> 'tex+geo')" in err and "latent_channels" not in err
+
+    run = tmp_path / "exa"  # an Examiner run started with --model examiner_tiny
+    save_checkpoint(run, 2, {"step": 2, "model": {}, "config": examiner_config("examiner_tiny", img_size=S).to_dict()})
+    assert main(["train-examiner", "--corpus", str(corpus), "--out", str(run), "--steps", "4", "--batch", "2"]) == 1
+    err = _one_line_error(capsys)
+    assert "the run's Examiner differs from this one (patch_size: 16 -> 8, " in err and "img_size" not in err
+    assert f"`trioman train-examiner --corpus {corpus} --out {run} --model examiner_tiny --steps 4 --batch 2`" in err
+    save_checkpoint(run, 3, {"step": 3, "model": {}, "config": examiner_config("examiner_nano", img_size=2 * S).to_dict()})
+    assert main(["train-examiner", "--corpus", str(corpus), "--out", str(run), "--steps", "4", "--batch", "2"]) == 1
+    err = _one_line_error(capsys)
+    assert f"(img_size: {2 * S} -> {S}); the run's Examiner sees {2 * S} px images, this corpus's are {S} px" in err

@@ -20,7 +20,7 @@ from trioman.toolkit.distributed import MIXED_PRECISION, barrier, check_world_si
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig, PatchLogits
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint, load_checkpoint, save_atomic, save_checkpoint
+from trioman.toolkit.train.checkpoint import check_config, SELECTED, latest_checkpoint, load_checkpoint, save_atomic, save_checkpoint
 from trioman.toolkit.train.guard import StepGuard, check_weights
 
 
@@ -131,8 +131,7 @@ def train_examiner(
     found = latest_checkpoint(Path(run)) if run is not None else None
     if found is not None:
         state = load_checkpoint(found)
-        if state["config"] != model.config.to_dict():
-            raise ValueError(f"{found}: checkpoint config {state['config']} differs from the model's {model.config.to_dict()}")
+        check_config(found, state["config"], model.config.to_dict(), "Examiner")
         check_world_size(int(state.get("world_size", 1)), ranks, found)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])

@@ -24,7 +24,7 @@ from trioman.toolkit.refiner.backbones import create_refiner
 from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inputs, refiner_targets
 from trioman.toolkit.refiner.config import RefinerConfig
 from trioman.toolkit.refiner.loss import RefinerLossWeights, refiner_loss
-from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from trioman.toolkit.train.checkpoint import check_config, latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.guard import StepGuard, check_weights
 
 
@@ -143,8 +143,7 @@ def train_refiner(
     found = latest_checkpoint(Path(run)) if run is not None else None
     if found is not None:
         state = load_checkpoint(found)
-        if state["config"] != model.config.to_dict():
-            raise ValueError(f"{found}: checkpoint config {state['config']} differs from the model's {model.config.to_dict()}")
+        check_config(found, state["config"], model.config.to_dict(), "Refiner")
         check_world_size(int(state.get("world_size", 1)), ranks, found)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])

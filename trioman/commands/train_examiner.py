@@ -34,11 +34,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.distributed import process_group
     from trioman.toolkit.model_training import FitConfig, fit_examiner
+    from trioman.toolkit.train.checkpoint import ConfigMismatch
 
     fit = FitConfig(steps=args.steps, batch=args.batch, lr=3e-4, crop=None, seed=args.seed, baseline_frames=args.baseline_frames)
     with process_group(args.device) as ranks:
-        _, info = fit_examiner(args.corpus, args.out, args.model, fit, args.pairing, args.validation_subjects, args.validate_every,
-                               device=args.device, mixed_precision=args.mixed_precision)
+        try:
+            _, info = fit_examiner(args.corpus, args.out, args.model, fit, args.pairing, args.validation_subjects,
+                                   args.validate_every, device=args.device, mixed_precision=args.mixed_precision)
+        except ConfigMismatch as err:
+            raise err.with_hint(resume_hint(args, err)) from None
     if not ranks.main:
         return 0
     print(f"train-examiner: {info['checkpoint']} ({args.model}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
@@ -47,3 +51,21 @@ def run(args: argparse.Namespace) -> int:
         best = info["validation_auroc"][str(info["selected_step"])]
         print(f"train-examiner: kept step {info['selected_step']} (validation AUROC {best:.3f} on {args.validation_subjects} held-out subject(s))")
     return 0
+
+
+def resume_hint(args: argparse.Namespace, err) -> str:
+    """What resumes the run whose Examiner (``err``: a ConfigMismatch) differs from the one these options build:
+    the command with the --model that builds the run's Examiner at the corpus's image size, when one does."""
+    from trioman.commands import command_line
+    from trioman.toolkit.examiner import EXAMINER_CONFIGS, examiner_config
+
+    run, size = err.run_config, err.config.get("img_size")
+    if run.get("img_size") != size:
+        return (f"the run's Examiner sees {run.get('img_size')} px images, this corpus's are {size} px: resume it on the "
+                f"corpus it was trained on, or choose another --out")
+    for name in sorted(EXAMINER_CONFIGS, key=lambda name: name != args.model):
+        if examiner_config(name, img_size=size).to_dict() == run:
+            words = command_line("train-examiner", add_arguments, {**vars(args), "model": name})
+            return f"resume it with the options it was started with: `{words}` (or choose another --out)"
+    return ("no --model of this trioman builds the run's Examiner: resume it with the trioman version that started it, "
+            "or choose another --out")

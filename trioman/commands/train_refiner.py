@@ -31,16 +31,47 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.distributed import process_group
     from trioman.toolkit.model_training import FitConfig, fit_refiner
-    from trioman.toolkit.lpips import load_lpips, load_lpips_or_say_why
+    from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
+    from trioman.toolkit.train.checkpoint import ConfigMismatch
 
     fit = FitConfig(steps=args.steps, batch=args.batch, crop=args.crop, seed=args.seed, baseline_frames=args.baseline_frames)
     with process_group(args.device) as ranks:
-        lpips = load_lpips_or_say_why("train-refiner") if ranks.main else load_lpips()  # rank 0 alone says why
-        _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=lpips,
-                              backbone=args.backbone, pretrained=args.pretrained, device=args.device,
-                              mixed_precision=args.mixed_precision, gradient_checkpointing=args.gradient_checkpointing)
+        lpips = load_lpips()  # a named folder without the weights is an error before any work
+        try:
+            _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=lpips,
+                                  backbone=args.backbone, pretrained=args.pretrained, device=args.device,
+                                  mixed_precision=args.mixed_precision, gradient_checkpointing=args.gradient_checkpointing)
+        except ConfigMismatch as err:
+            raise err.with_hint(resume_hint(args, err)) from None
     if not ranks.main:
         return 0
+    if lpips is None:  # rank 0 alone says it, once the run has trained, never before an error
+        print(f"train-refiner: {NOT_FOUND_MESSAGE}")
     print(f"train-refiner: {info['checkpoint']} ({args.conditions}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
           f"final loss {info['final_loss']:.4f})")
     return 0
+
+
+def resume_hint(args: argparse.Namespace, err) -> str:
+    """What resumes the run whose Refiner (``err``: a ConfigMismatch) differs from the one these options build:
+    the command with the options that build the run's Refiner, when some do."""
+    from trioman.commands import command_line
+    from trioman.toolkit.model_training import REFINER_SIZES
+    from trioman.toolkit.refiner import RefinerConfig
+
+    run = err.run_config
+    sizes = sorted(REFINER_SIZES, key=lambda name: name != args.size) if run.get("backbone") == "scratch" else [args.size]
+    for size in sizes:  # the options that build a Refiner as fit_refiner does
+        options = {"crop": run.get("image_size"), "conditions": run.get("conditions"), "backbone": run.get("backbone"),
+                   "pretrained": run.get("pretrained_path"), "size": size}
+        widths = REFINER_SIZES[size] if options["backbone"] == "scratch" else {}
+        try:
+            same = RefinerConfig(image_size=options["crop"], conditions=options["conditions"], backbone=options["backbone"],
+                                 pretrained_path=options["pretrained"], **widths).to_dict() == run
+        except (TypeError, ValueError):
+            same = False
+        if same:
+            words = command_line("train-refiner", add_arguments, {**vars(args), **options})
+            return f"resume it with the options it was started with: `{words}` (or choose another --out)"
+    return ("no options of this trioman build the run's Refiner: resume it with the trioman version that started it, "
+            "or choose another --out")

@@ -65,7 +65,7 @@ def test_resume_continues_from_the_checkpoint_and_is_seeded(tmp_path):
     second = train_examiner(create_examiner(TINY), data, ExaminerTrainConfig(steps=6, seed=2, checkpoint_every=3), run=tmp_path)
     assert second.step == 6
     assert second.losses == pytest.approx(full.losses[3:], rel=1e-5)
-    with pytest.raises(ValueError, match="checkpoint config .* differs from the model's"):
+    with pytest.raises(ValueError, match=r"the run's Examiner differs from this one \(head_hidden: \d+ -> 8\); "):
         train_examiner(create_examiner(TINY, head_hidden=8), data, ExaminerTrainConfig(steps=6), run=tmp_path)
 
 
