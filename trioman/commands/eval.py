@@ -23,11 +23,14 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from trioman.toolkit.evaluate import evaluate
-    from trioman.toolkit.lpips import load_lpips_or_say_why
+    from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
 
     out = Path(args.out) if args.out else Path(args.run) / f"eval_{args.split}"
-    summary = evaluate(args.run, args.split, out, lpips=load_lpips_or_say_why("eval"), progress=not args.quiet,
+    model = load_lpips()  # a named folder without the weights is an error before any work
+    summary = evaluate(args.run, args.split, out, lpips=model, progress=not args.quiet,
                        video=not args.no_video, protocol=args.protocol, poses=args.poses)
+    if model is None:  # said with the results, never before an error about the inputs
+        print(f"eval: {NOT_FOUND_MESSAGE}")
     m = summary["mean"]
     print(f"eval: {summary['frames']} {args.split} frames at step {summary['step']}: PSNR {m['psnr']:.2f} dB, "
           f"SSIM {m['ssim']:.4f} (masked protocol); unmasked PSNR {m['psnr_unmasked']:.2f} dB")

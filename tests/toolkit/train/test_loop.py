@@ -251,8 +251,9 @@ def test_an_error_before_training_is_one_line_without_the_lpips_note(tmp_path, c
     out = str(tmp_path / "run")
     for argv in (["train", str(tmp_path / "missing"), "--out", out], ["train", str(tmp_path), "--out", str(taken)],
                  ["train", str(tmp_path), "--out", out, "--extend-iterations", "3"],
-                 ["train", str(tmp_path), "--out", out, "--extra-weight", "2"]):
-        assert main([*argv, "--quiet"]) == 1
+                 ["train", str(tmp_path), "--out", out, "--extra-weight", "2"], ["eval", str(tmp_path / "missing")],
+                 ["train-refiner", "--corpus", str(tmp_path / "missing"), "--out", out]):
+        assert main([*argv, *(["--quiet"] if argv[0] != "train-refiner" else [])]) == 1
         said = capsys.readouterr()
         assert said.out == "" and len(said.err.strip().splitlines()) == 1, (argv, said)
 
