@@ -40,7 +40,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import cv2
 import numpy as np
@@ -71,6 +71,7 @@ AUGMENT_JSON = "augment.json"
 RECORDS_DIR = "records"
 HISTOGRAM_PNG = "scores.png"
 STAGES = _STEP_STAGES + ("write",)
+_SHA256 = re.compile(r"[0-9a-f]{64}")  # a frame file's digest in its record (fullmatch)
 # What a resumed run must share with the run it continues (everything that decides the output bytes).
 _RESUME_KEYS = ("subject", "avatar", "refiner", "examiner", "seed", "per_frame", "threshold", "frames", "mask",
                 "generator")
@@ -505,10 +506,35 @@ def check_record(rec: Any, path: Path, folder: Path, name: str, index: int) -> d
                 raise fail(f"frames[{k}].{key}", "expected numbers") from None
             if (shape is not None and a.shape != shape) or a.size == 0 or not np.isfinite(a).all():
                 raise fail(f"frames[{k}].{key}", f"expected finite numbers of shape {shape or '[J, 3]'}, got {list(a.shape)}")
-        for sub in (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ()):
+        subs = (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ())
+        for sub in subs:
             if not (folder / sub / f"{f['name']}.png").is_file():
                 raise fail(f"frames[{k}]", f"its file {folder / sub / (f['name'] + '.png')} is missing")
+        if "sha256" in f:  # records written before the hashes were kept have none, and stay readable
+            _check_frame_hashes(f["sha256"], subs, folder, f["name"], fail, f"frames[{k}].sha256")
     return rec
+
+
+def _check_frame_hashes(digests: Any, subs: tuple[str, ...], folder: Path, name: str, fail: Callable[[str, str], FormatError],
+                        field: str) -> None:
+    """Each of a frame's files (``folder/<sub>/<name>.png``) has the sha256 its record gives (``digests``:
+    {sub: hex digest}, one per file): a file replaced or damaged after it was written is named."""
+    if not isinstance(digests, dict) or sorted(digests) != sorted(subs) or not all(
+            isinstance(d, str) and _SHA256.fullmatch(d) for d in digests.values()):
+        raise fail(field, f"expected {{{', '.join(repr(s) for s in subs)}}} each a sha256 (64 hex digits), got {digests!r}")
+    for sub in subs:
+        path = folder / sub / f"{name}.png"
+        found = sha256_file(path)
+        if found != digests[sub]:
+            raise fail(f"{field}.{sub}", f"{path} is not the file that was written (its sha256 is {found[:12]}..., the "
+                                         f"record's {digests[sub][:12]}...): replaced or damaged since")
+
+
+def _write_frame_png(path: Path, img: np.ndarray) -> str:
+    """Write a frame file (atomic) -> the sha256 of its bytes as written, kept in the record (check_record
+    verifies it)."""
+    write_png(path, img)
+    return sha256_file(path)
 
 
 def _augment_frame(subj: Any, i: int, step: _Step, out: Path, groups: np.ndarray) -> dict:
@@ -534,12 +560,12 @@ def _augment_frame(subj: Any, i: int, step: _Step, out: Path, groups: np.ndarray
     for k, c in enumerate(cands):
         fname = f"{name}_c{k}"
         if k in made.kept:  # the image shows the background where the mask is 0 (subject format)
-            write_png(out / IMAGES_DIR / f"{fname}.png", made.images[k])
-            write_png(out / MASKS_DIR / f"{fname}.png", made.masks[k])
-            if step.weighted:
-                write_png(out / WEIGHTS_DIR / f"{fname}.png", made.weights[k])
+            files = {IMAGES_DIR: made.images[k], MASKS_DIR: made.masks[k],
+                     **({WEIGHTS_DIR: made.weights[k]} if step.weighted else {})}
+            digests = {sub: _write_frame_png(out / sub / f"{fname}.png", img) for sub, img in files.items()}
             out_frames.append({"name": fname, "candidate": k, "pose": c.pose.tolist(), "trans": c.trans.tolist(),
-                               "viewmat": c.viewmat.tolist(), "K": K.tolist(), **({"weights": True} if step.weighted else {})})
+                               "viewmat": c.viewmat.tolist(), "K": K.tolist(), **({"weights": True} if step.weighted else {}),
+                               "sha256": digests})
         if made.scores is None:
             status = "kept"
         elif k != made.chosen:

@@ -2,6 +2,7 @@
 subject, a tiny exported avatar and tiny exported ONNX models; records, summary, threshold, determinism,
 resume after an interruption, refusals and bad inputs; a run without torch."""
 
+import hashlib
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -109,6 +110,9 @@ def test_with_an_examiner_the_better_candidate_becomes_a_pseudo_gt_frame(inputs,
         assert [c["status"] for c in rec["candidates"]] == ["accepted" if j == rec["chosen"] else "not_chosen" for j in range(2)]
         assert aug.frame_names[k] == f"{src.frame_names[i]}_c{rec['chosen']}" and aug.sequence[k] == src.sequence[i]
         assert rec["seed"] == frame_seed(7, i)
+        for f in rec["frames"]:  # each written file's sha256 (check_record verifies them at --merge)
+            assert f["sha256"] == {d: hashlib.sha256((out / d / f"{f['name']}.png").read_bytes()).hexdigest()
+                                   for d in ("images", "masks")}
         for c in rec["candidates"]:
             assert set(c["camera"]) == {"azimuth", "elevation", "log_distance"}
             assert set(c["pose_delta_norm"]) <= set(GROUPS) and c["pose_delta_norm"]["root"] == 0.0

@@ -65,3 +65,30 @@ def test_shard_rule_and_parse():
     assert Shard.parse(" 0/1 ").name == "0-of-1"
     with pytest.raises(ValueError, match=r"--shard: expected I/N with 0 <= I < N \(e.g. 0/4\), got '3/3'"):
         Shard.parse("3/3")
+
+
+def test_a_swapped_frame_file_in_a_shard_is_named_and_nothing_moves(inputs, tmp_path, capsys):  # noqa: F811
+    """Issue 26 (minor): a PNG swapped inside a shard went unnoticed at --merge; records keep each file's sha256."""
+    import json
+
+    out = tmp_path / "sharded"
+    for i in range(2):
+        assert main(argv(inputs, out, "--shard", f"{i}/2")) == 0
+    capsys.readouterr()
+    shard = out / "shards" / "1-of-2"
+    record = sorted((shard / "records").glob("*.json"))[0]
+    frame = json.loads(record.read_text())["frames"][0]["name"]
+    image, mask = shard / "images" / f"{frame}.png", shard / "masks" / f"{frame}.png"
+    kept = image.read_bytes()
+    image.write_bytes(mask.read_bytes())  # a valid PNG, the wrong one
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    assert main(argv(inputs, out, "--merge")) == 1
+    err = capsys.readouterr().err
+    assert f"{record}: frames[0].sha256.images: {image} is not the file that was written" in err and err.count("\n") == 1
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before  # nothing moved, no augment.json
+
+    image.write_bytes(kept)  # records written before the hashes were kept merge as before
+    for path in (out / "shards").glob("*/records/*.json"):
+        rec = json.loads(path.read_text())
+        path.write_text(json.dumps({**rec, "frames": [{k: v for k, v in f.items() if k != "sha256"} for f in rec["frames"]]}))
+    assert main(argv(inputs, out, "--merge")) == 0
