@@ -361,11 +361,12 @@ def quiet_opencv() -> Iterator[None]:
 
 
 def _png_damage(data: np.ndarray) -> str | None:
-    """Why a PNG's bytes are damaged (a chunk past the end, a chunk's CRC wrong, no IEND), or None
-    (whole, or not a PNG).
+    """Why a PNG's bytes are damaged (a chunk past the end, a critical chunk's CRC wrong, no IEND), or
+    None (whole, or not a PNG).
 
-    Only the chunk framing is checked (zlib's CRC-32, as libpng does); the pixels are left to the
-    decoder. Checked here so that the error is one line: libpng prints its own complaint to stderr.
+    Only the chunk framing is checked (zlib's CRC-32 of the critical chunks, which libpng refuses too; it
+    skips an ancillary chunk with a bad CRC); the pixels are left to the decoder. Checked here so that
+    the error is one line: libpng prints its own complaint to stderr.
     """
     raw = data.tobytes() if data.size >= 8 else b""
     if raw[:8] != _PNG_SIGNATURE:
@@ -378,7 +379,7 @@ def _png_damage(data: np.ndarray) -> str | None:
         if end > size:
             return f"truncated PNG: chunk {name!r} at byte {pos} needs {end} bytes, the file has {size}"
         (crc,) = struct.unpack(">I", raw[end - 4:end])
-        if zlib.crc32(raw[pos + 4:end - 4]) != crc:
+        if not kind[0] & 0x20 and zlib.crc32(raw[pos + 4:end - 4]) != crc:  # critical chunks, as libpng
             return f"corrupt PNG: chunk {name!r} at byte {pos} fails its CRC"
         if kind == b"IEND":
             return None
