@@ -73,6 +73,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--detail-sigma", type=float, default=None, metavar="PX",
                         help="ablation: also train the lever GRd_tex+geo, refined pseudo-GT keeping only the Refiner's detail "
                              "(its change minus that change blurred by PX pixels)")
+    parser.add_argument("--coverage", type=float, default=None, metavar="FRACTION",
+                        help="ablation: re-render the held-out subjects with their training turn spanning this share of "
+                             "a full turn (default 1: the corpus's subjects)")
+    parser.add_argument("--pose-noise", type=float, default=None, metavar="DEG",
+                        help="ablation: re-render the held-out subjects with this fitting noise on their stored poses "
+                             "(evaluated at the true test poses; default 0)")
+    parser.add_argument("--augment-start", type=float, default=None, help="ablation: warm-up share of an augmented run")
+    parser.add_argument("--augment-pool", type=int, default=None, help="ablation: pseudo-GT frames per pool rebuild")
+    parser.add_argument("--augment-refresh", type=int, default=None, help="ablation: steps between pool rebuilds")
+    parser.add_argument("--augment-mask", choices=("carried", "alpha"), default=None,
+                        help="ablation: the pseudo frames' mask (default carried)")
+    parser.add_argument("--variants", default=None, metavar="NAMES",
+                        help="ablation: train only these rows (comma-separated); the others are reported when finished")
     parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
                         help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
 
