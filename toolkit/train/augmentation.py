@@ -196,8 +196,7 @@ class Augmenter:
                        self.rng, self.cfg.candidates, self.gen_cfg)
         sec["generate"] += time.perf_counter() - t
         source = Source(i, real.astype(np.float32), f.K[i].numpy(), bg)
-        index = int(f.indices[i]) if i < len(f.indices) else i
-        truth = None if self.truth is None else (lambda c, K: self.truth.at_draw(index, c, K))
+        truth = None if self.truth is None else (lambda c, K: self.truth.at_draw(int(f.indices[i]), c, K))
         made = make_pseudo_frames(cands, source, lambda c: render_candidate(model, c, f.K[i], W, H, bg), self.pseudo_cfg,
                                   body=self.subject.body, aligner=self.aligner, refiner=self.refiner,
                                   examiner=self.examiner, truth=truth, seconds=sec)

@@ -12,12 +12,9 @@ pytest.importorskip("anny")
 from trioman.cli import main  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
-from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
+from tests.toolkit.train.test_loop import TINY_AVATAR as TINY  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig, preset  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
-
-
-TINY = AvatarConfig(keep=0.3, triplane_channels=4, triplane_res=16, hidden=32)
 
 
 @pytest.fixture(scope="module")
