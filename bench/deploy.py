@@ -146,8 +146,8 @@ def bench_examiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, thread
 def _augment_stages(corpus: Path, onnx_dir: Path, work: Path, frames: int) -> dict:
     """Per-stage ms per frame of ``trioman augment`` on the first held-out subject, with its baseline
     exported by ``trioman export avatar``."""
-    from trioman.cli import main
     from trioman.export.avatar import export_avatar
+    from trioman.runtime.augment import augment
 
     meta = json.loads((corpus / "corpus.json").read_text())
     name = next(s["name"] for s in meta["subjects"] if s["role"] == "heldout")
@@ -155,10 +155,8 @@ def _augment_stages(corpus: Path, onnx_dir: Path, work: Path, frames: int) -> di
     if not (avatar / "avatar.json").is_file():
         export_avatar(corpus / "runs" / "heldout" / name, avatar, overwrite=True)
     out = work / f"augment_{name}"
-    cmd = ["augment", str(corpus / "subjects" / name), "--avatar", str(avatar), "--refiner", str(onnx_dir / "refiner.onnx"),
-           "--examiner", str(onnx_dir / "examiner.onnx"), "--out", str(out), "--limit", str(frames), "--overwrite", "--quiet"]
-    if main(cmd) != 0:
-        raise RuntimeError(f"trioman {' '.join(cmd)} failed")
+    augment(corpus / "subjects" / name, avatar, onnx_dir / "refiner.onnx", out, onnx_dir / "examiner.onnx", limit=frames,
+            overwrite=True, progress=False)
     result = json.loads((out / "augment.json").read_text())
     s = result["summary"]
     return {"subject": name, "folder": str(out), "frames": s["source_frames"], "candidates": s["candidates"],

@@ -25,13 +25,13 @@ import numpy as np
 from trioman.runtime.avatar import SCALE_CLAMP, Avatar
 from trioman.runtime.formats.common import (
     FormatError,
-    _fail,
-    _is_int,
-    _load_json,
-    load_npz,
-    _plain_json,
-    write_npz,
     check_header,
+    format_error,
+    is_int,
+    load_json,
+    load_npz,
+    plain_json,
+    write_npz,
 )
 from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_target, write_synced
 from trioman.runtime.skeleton import Skeleton
@@ -70,47 +70,47 @@ def sha256_file(path: Path) -> str:
 def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
     get = check_header(meta, where, AVATAR_FORMAT, AVATAR_VERSION, "avatar")
     n = get("num_gaussians")
-    if not _is_int(n) or n <= 0:
-        raise _fail(where, "num_gaussians", f"expected a positive integer, got {n!r}")
+    if not is_int(n) or n <= 0:
+        raise format_error(where, "num_gaussians", f"expected a positive integer, got {n!r}")
     for field in ("anisotropic", "pose_dependent"):
         if not isinstance(get(field), bool):
-            raise _fail(where, field, f"expected true or false, got {meta[field]!r}")
+            raise format_error(where, field, f"expected true or false, got {meta[field]!r}")
     clamp = get("scale_clamp")
     if clamp != list(SCALE_CLAMP):
-        raise _fail(where, "scale_clamp", f"expected {list(SCALE_CLAMP)} (log-scale clamp), got {clamp!r}")
+        raise format_error(where, "scale_clamp", f"expected {list(SCALE_CLAMP)} (log-scale clamp), got {clamp!r}")
     joints = get("pose_joints")
     if not (isinstance(joints, list) and all(isinstance(j, str) and j for j in joints)):
-        raise _fail(where, "pose_joints", f"expected a list of joint names, got {joints!r}")
+        raise format_error(where, "pose_joints", f"expected a list of joint names, got {joints!r}")
     if meta["pose_dependent"] and not joints:
-        raise _fail(where, "pose_joints", "empty, but pose_dependent is true")
+        raise format_error(where, "pose_joints", "empty, but pose_dependent is true")
     if not isinstance(get("trioman_version"), str):
-        raise _fail(where, "trioman_version", f"expected a string, got {meta['trioman_version']!r}")
+        raise format_error(where, "trioman_version", f"expected a string, got {meta['trioman_version']!r}")
     if not isinstance(get("source"), dict):
-        raise _fail(where, "source", f"expected an object, got {type(meta['source']).__name__}")
+        raise format_error(where, "source", f"expected an object, got {type(meta['source']).__name__}")
     files = get("files")
     if not isinstance(files, dict):
-        raise _fail(where, "files", f"expected an object of file name -> {{sha256, bytes}}, got {type(files).__name__}")
+        raise format_error(where, "files", f"expected an object of file name -> {{sha256, bytes}}, got {type(files).__name__}")
     required = [GAUSSIANS_NPZ, SKELETON_NPZ, CANONICAL_PLY] + ([POSE_ONNX] if meta["pose_dependent"] else [])
     for name in required:
         if name not in files:
-            raise _fail(where, f"files.{name}", "missing entry")
+            raise format_error(where, f"files.{name}", "missing entry")
     allowed = set(required)
     for name, entry in files.items():
         if name not in allowed and not _EXTRA_PLY.fullmatch(name):
-            raise _fail(where, f"files.{name}", f"unexpected file name (allowed: {sorted(allowed)} and posed_<name>.ply)")
+            raise format_error(where, f"files.{name}", f"unexpected file name (allowed: {sorted(allowed)} and posed_<name>.ply)")
         if not (isinstance(entry, dict) and isinstance(entry.get("sha256"), str) and re.fullmatch(r"[0-9a-f]{64}", entry["sha256"])
-                and _is_int(entry.get("bytes")) and entry["bytes"] >= 0):
-            raise _fail(where, f"files.{name}", f"expected {{'sha256': 64 hex digits, 'bytes': size}}, got {entry!r}")
+                and is_int(entry.get("bytes")) and entry["bytes"] >= 0):
+            raise format_error(where, f"files.{name}", f"expected {{'sha256': 64 hex digits, 'bytes': size}}, got {entry!r}")
     return meta
 
 
 def _check_skeleton(arrays: Mapping[str, np.ndarray], where: Any) -> Skeleton:
     for key in ("joint_names", "parents", "joints"):
         if key not in arrays:
-            raise _fail(where, key, f"missing array (has: {sorted(arrays)})")
+            raise format_error(where, key, f"missing array (has: {sorted(arrays)})")
     names = np.asarray(arrays["joint_names"])
     if names.ndim != 1 or names.dtype.kind != "U":
-        raise _fail(where, "joint_names", f"expected a 1-D unicode array, got dtype {names.dtype} shape {list(names.shape)}")
+        raise format_error(where, "joint_names", f"expected a 1-D unicode array, got dtype {names.dtype} shape {list(names.shape)}")
     try:
         return Skeleton(tuple(names.tolist()), np.asarray(arrays["parents"]), np.asarray(arrays["joints"]))
     except ValueError as err:
@@ -124,44 +124,44 @@ def _check_gaussians(arrays: Mapping[str, np.ndarray], where: Any, N: int, J: in
     if anisotropic:
         shapes["local_quats"] = (N, 4)
     elif "local_quats" in arrays:
-        raise _fail(where, "local_quats", "present, but avatar.json says the avatar is isotropic (anisotropic: false)")
+        raise format_error(where, "local_quats", "present, but avatar.json says the avatar is isotropic (anisotropic: false)")
     out: dict[str, np.ndarray] = {}
     for key, want in shapes.items():
         if key not in arrays:
-            raise _fail(where, key, f"missing array (has: {sorted(arrays)})")
+            raise format_error(where, key, f"missing array (has: {sorted(arrays)})")
         a = np.asarray(arrays[key])
         kinds = "iu" if key == "skin_indices" else "fiu"
         if a.dtype.kind not in kinds:
-            raise _fail(where, key, f"expected {'integers' if key == 'skin_indices' else 'floats'}, got dtype {a.dtype}")
+            raise format_error(where, key, f"expected {'integers' if key == 'skin_indices' else 'floats'}, got dtype {a.dtype}")
         if a.ndim != len(want) or any(w is not None and s != w for s, w in zip(a.shape, want)):
             if a.ndim >= 1 and a.shape[0] != N and a.ndim == len(want):
-                raise _fail(where, key, f"{a.shape[0]} Gaussians, but avatar.json num_gaussians is {N}")
+                raise format_error(where, key, f"{a.shape[0]} Gaussians, but avatar.json num_gaussians is {N}")
             shown = "[" + ", ".join("K" if w is None else str(w) for w in want) + "]"
-            raise _fail(where, key, f"expected shape {shown}, got {list(a.shape)}")
+            raise format_error(where, key, f"expected shape {shown}, got {list(a.shape)}")
         if key in _FLOAT_FIELDS:
             a = a.astype(np.float32)
             bad = ~np.isfinite(a)
             if bad.any():
                 first = int(np.flatnonzero(bad.reshape(N, -1).any(axis=1))[0])
-                raise _fail(where, key, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), first at Gaussian {first}")
+                raise format_error(where, key, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), first at Gaussian {first}")
         out[key] = a
     idx, w = out["skin_indices"], out["skin_weights"]
     if idx.shape != w.shape:
-        raise _fail(where, "skin_weights", f"shape {list(w.shape)} differs from skin_indices {list(idx.shape)}")
+        raise format_error(where, "skin_weights", f"shape {list(w.shape)} differs from skin_indices {list(idx.shape)}")
     if idx.shape[1] == 0:
-        raise _fail(where, "skin_indices", "no influences (K = 0)")
+        raise format_error(where, "skin_indices", "no influences (K = 0)")
     if idx.min() < 0 or idx.max() >= J:
-        raise _fail(where, "skin_indices", f"joint indices must lie in [0, {J}) (skeleton.npz has {J} joints), got [{idx.min()}, {idx.max()}]")
+        raise format_error(where, "skin_indices", f"joint indices must lie in [0, {J}) (skeleton.npz has {J} joints), got [{idx.min()}, {idx.max()}]")
     out["skin_indices"] = idx.astype(np.int32)
     if np.any(w < 0):
-        raise _fail(where, "skin_weights", f"{int((w < 0).sum())} negative weight(s)")
+        raise format_error(where, "skin_weights", f"{int((w < 0).sum())} negative weight(s)")
     sums = w.sum(axis=1, dtype=np.float64)
     if np.any(np.abs(sums - 1.0) > WEIGHT_SUM_TOL):
         worst = int(np.argmax(np.abs(sums - 1.0)))
-        raise _fail(where, "skin_weights", f"rows must sum to 1, Gaussian {worst} sums to {sums[worst]:.6f}")
+        raise format_error(where, "skin_weights", f"rows must sum to 1, Gaussian {worst} sums to {sums[worst]:.6f}")
     o = out["opacities"]
     if np.any((o < 0) | (o > 1)):
-        raise _fail(where, "opacities", f"values must lie in [0, 1], got [{o.min()}, {o.max()}]")
+        raise format_error(where, "opacities", f"values must lie in [0, 1], got [{o.min()}, {o.max()}]")
     return out
 
 
@@ -175,24 +175,24 @@ def _open_onnx(model: Path | bytes, where: Any, J: int, N: int, S: int) -> Any:
         src = str(model) if isinstance(model, Path) else model
         session = ort.InferenceSession(src, sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as err:
-        raise _fail(where, None, f"not a loadable ONNX model ({type(err).__name__}: {str(err).splitlines()[0][:300]})") from None
+        raise format_error(where, None, f"not a loadable ONNX model ({type(err).__name__}: {str(err).splitlines()[0][:300]})") from None
     inputs = session.get_inputs()
     if [i.name for i in inputs] != [ONNX_INPUT]:
-        raise _fail(where, "inputs", f"expected one input {ONNX_INPUT!r}, got {[i.name for i in inputs]}")
+        raise format_error(where, "inputs", f"expected one input {ONNX_INPUT!r}, got {[i.name for i in inputs]}")
     if inputs[0].type != "tensor(float)" or list(inputs[0].shape) != [J, 3]:
-        raise _fail(where, ONNX_INPUT, f"expected float32 [{J}, 3], got {inputs[0].type} {inputs[0].shape}")
+        raise format_error(where, ONNX_INPUT, f"expected float32 [{J}, 3], got {inputs[0].type} {inputs[0].shape}")
     names = [o.name for o in session.get_outputs()]
     if sorted(names) != sorted(ONNX_OUTPUTS):
-        raise _fail(where, "outputs", f"expected {list(ONNX_OUTPUTS)}, got {names}")
+        raise format_error(where, "outputs", f"expected {list(ONNX_OUTPUTS)}, got {names}")
     try:
         outs = session.run(list(ONNX_OUTPUTS), {ONNX_INPUT: np.zeros((J, 3), np.float32)})
     except Exception as err:
-        raise _fail(where, None, f"the graph fails to run ({type(err).__name__}: {str(err).splitlines()[0][:300]})") from None
+        raise format_error(where, None, f"the graph fails to run ({type(err).__name__}: {str(err).splitlines()[0][:300]})") from None
     for name, out, cols in zip(ONNX_OUTPUTS, outs, (3, S, 3)):
         if out.shape != (N, cols) or out.dtype != np.float32:
-            raise _fail(where, name, f"expected float32 [{N}, {cols}], got {out.dtype} {list(out.shape)}")
+            raise format_error(where, name, f"expected float32 [{N}, {cols}], got {out.dtype} {list(out.shape)}")
         if not np.all(np.isfinite(out)):
-            raise _fail(where, name, "non-finite value(s) (NaN/Inf) at the zero pose")
+            raise format_error(where, name, "non-finite value(s) (NaN/Inf) at the zero pose")
     return session
 
 
@@ -211,7 +211,7 @@ def load_avatar(path: str | os.PathLike) -> Avatar:
     meta_path = root / AVATAR_JSON
     if not meta_path.is_file():
         raise FormatError(f"{meta_path}: missing file (is this a TrioMan avatar folder?)")
-    meta = _check_meta(_load_json(meta_path), meta_path)
+    meta = _check_meta(load_json(meta_path), meta_path)
     for name, entry in meta["files"].items():
         f = root / name
         if not f.is_file():
@@ -240,9 +240,9 @@ def load_avatar(path: str | os.PathLike) -> Avatar:
 def _check_pose_joints(names: Sequence[str], skeleton: Skeleton, where: Any) -> None:
     unknown = [n for n in names if n not in skeleton.joint_names]
     if unknown:
-        raise _fail(where, "pose_joints", f"unknown joint name(s) {unknown[:5]} (the skeleton has {skeleton.num_joints} joints)")
+        raise format_error(where, "pose_joints", f"unknown joint name(s) {unknown[:5]} (the skeleton has {skeleton.num_joints} joints)")
     if len(set(names)) != len(names):
-        raise _fail(where, "pose_joints", "duplicate joint names")
+        raise format_error(where, "pose_joints", "duplicate joint names")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -293,7 +293,7 @@ def save_avatar(
         "scale_clamp": list(SCALE_CLAMP),
         "pose_joints": pose_joints,
         "trioman_version": __version__,
-        "source": _plain_json(dict(source or {}), where, "source"),
+        "source": plain_json(dict(source or {}), where, "source"),
         "files": {},
     }
     names = [GAUSSIANS_NPZ, SKELETON_NPZ, CANONICAL_PLY] + ([POSE_ONNX] if pose_dependent_onnx is not None else [])
@@ -306,7 +306,7 @@ def save_avatar(
     arrays = _check_gaussians(gaussians, where, N, skeleton.num_joints, anisotropic)
     unknown = sorted(set(gaussians) - set(arrays))
     if unknown:
-        raise _fail(where, "gaussians", f"unknown array(s) {unknown}")
+        raise format_error(where, "gaussians", f"unknown array(s) {unknown}")
     session = None
     if pose_dependent_onnx is not None:
         session = _open_onnx(bytes(pose_dependent_onnx), f"{where}: {POSE_ONNX}", skeleton.num_joints, N, 3 if anisotropic else 1)

@@ -26,15 +26,18 @@ class FormatError(ValueError):
 # the subject
 
 
-def _fail(where: Any, field: str | None, problem: str) -> FormatError:
+def format_error(where: Any, field: str | None, problem: str) -> FormatError:
+    """The FormatError for ``problem`` with ``field`` of ``where`` (a file or folder)."""
     return FormatError(f"{where}: {field}: {problem}" if field else f"{where}: {problem}")
 
 
-def _is_int(v: Any) -> bool:
+def is_int(v: Any) -> bool:
+    """Whether ``v`` is a JSON integer (a bool is not)."""
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _is_number(v: Any) -> bool:
+def is_number(v: Any) -> bool:
+    """Whether ``v`` is a finite JSON number (a bool is not)."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -56,7 +59,8 @@ def read_json(path: str | os.PathLike, missing: str = "missing file") -> Any:
         raise FormatError(f"{path}: malformed JSON: nested too deeply to read") from None
 
 
-def _load_json(path: Path) -> Any:
+def load_json(path: Path) -> Any:
+    """A format's metadata file through ``read_json``; a missing one asks whether this is a TrioMan folder."""
     return read_json(path, "missing file (is this a TrioMan subject folder?)")
 
 
@@ -110,14 +114,14 @@ def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
     write_synced(path, lambda f: np.savez(f, **arrays))
 
 
-def _real(v: Any) -> Any:
+def as_real(v: Any) -> Any:
     """A real number (numpy scalars included) as a Python float; anything else unchanged for the metadata checks."""
     if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
         return float(v)
     return v
 
 
-def _plain_json(value: Any, where: str, field: str) -> Any:
+def plain_json(value: Any, where: str, field: str) -> Any:
     """A JSON round trip of ``value`` (numpy scalars and arrays become numbers and lists)."""
 
     def default(o: Any) -> Any:
@@ -137,24 +141,24 @@ def check_header(meta: Any, where: Any, fmt: str, version: int, kind: str) -> Ca
     """Check the fields every TrioMan JSON header shares (a JSON object; format, version, non-empty
     body_model, units "m") -> ``get(field)``, which raises FormatError for a missing field."""
     if not isinstance(meta, dict):
-        raise _fail(where, None, f"expected a JSON object, got {type(meta).__name__}")
+        raise format_error(where, None, f"expected a JSON object, got {type(meta).__name__}")
     found = meta.get("format")
     if found != fmt:
-        raise _fail(where, "format", f"expected {fmt!r}, got {found!r}: not a TrioMan {kind}")
+        raise format_error(where, "format", f"expected {fmt!r}, got {found!r}: not a TrioMan {kind}")
     v = meta.get("version")
-    if not _is_int(v):
-        raise _fail(where, "version", f"expected an integer, got {v!r}")
+    if not is_int(v):
+        raise format_error(where, "version", f"expected an integer, got {v!r}")
     if v != version:
-        raise _fail(where, "version", f"unknown version {v} (this trioman reads version {version})")
+        raise format_error(where, "version", f"unknown version {v} (this trioman reads version {version})")
 
     def get(field: str) -> Any:
         if field not in meta:
-            raise _fail(where, field, "missing field")
+            raise format_error(where, field, "missing field")
         return meta[field]
 
     body_model = get("body_model")
     if not isinstance(body_model, str) or not body_model:
-        raise _fail(where, "body_model", f"expected a non-empty string, got {body_model!r}")
+        raise format_error(where, "body_model", f"expected a non-empty string, got {body_model!r}")
     if get("units") != "m":
-        raise _fail(where, "units", f"expected 'm' (metres), got {meta['units']!r}")
+        raise format_error(where, "units", f"expected 'm' (metres), got {meta['units']!r}")
     return get

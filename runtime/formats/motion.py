@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trioman.runtime.formats.common import FormatError, _fail, load_npz
+from trioman.runtime.formats.common import FormatError, format_error, load_npz
 from trioman.runtime.image_io import atomic_path
 from trioman.runtime.motions import DEFAULT_FPS, DEFAULT_FRAMES, MOTIONS, Motion
 from trioman.runtime.skeleton import Skeleton
@@ -33,7 +33,7 @@ MAX_TRANS = 1e4  # metres from the origin
 def _scalar(arrays: dict, key: str, kind: str, where: Path):
     a = arrays[key]
     if a.shape != () or a.dtype.kind not in kind:
-        raise _fail(where, key, f"expected a scalar of kind {kind!r}, got dtype {a.dtype} shape {list(a.shape)}")
+        raise format_error(where, key, f"expected a scalar of kind {kind!r}, got dtype {a.dtype} shape {list(a.shape)}")
     return a.item()
 
 
@@ -43,38 +43,38 @@ def load_motion(path: str | os.PathLike) -> Motion:
     arrays = load_npz(path)
     for key in _FIELDS:
         if key not in arrays:
-            raise _fail(path, key, "missing array")
+            raise format_error(path, key, "missing array")
     fmt = _scalar(arrays, "format", "U", path)
     if fmt != MOTION_FORMAT:
-        raise _fail(path, "format", f"expected {MOTION_FORMAT!r}, got {fmt!r}: not a TrioMan motion")
+        raise format_error(path, "format", f"expected {MOTION_FORMAT!r}, got {fmt!r}: not a TrioMan motion")
     version = _scalar(arrays, "version", "iu", path)
     if version != MOTION_VERSION:
-        raise _fail(path, "version", f"unknown version {version} (this trioman reads version {MOTION_VERSION})")
+        raise format_error(path, "version", f"unknown version {version} (this trioman reads version {MOTION_VERSION})")
     name = _scalar(arrays, "name", "U", path)
     fps = float(_scalar(arrays, "fps", "fiu", path))
     if not (np.isfinite(fps) and fps > 0):
-        raise _fail(path, "fps", f"must be a finite number > 0, got {fps}")
+        raise format_error(path, "fps", f"must be a finite number > 0, got {fps}")
     names = arrays["joint_names"]
     if names.ndim != 1 or names.dtype.kind != "U" or len(names) == 0:
-        raise _fail(path, "joint_names", f"expected a non-empty 1-D str array, got dtype {names.dtype} shape {list(names.shape)}")
+        raise format_error(path, "joint_names", f"expected a non-empty 1-D str array, got dtype {names.dtype} shape {list(names.shape)}")
     if len(set(names.tolist())) != len(names):
-        raise _fail(path, "joint_names", "names must be unique")
+        raise format_error(path, "joint_names", "names must be unique")
     J = len(names)
     poses, trans = arrays["poses"], arrays["trans"]
     if poses.dtype.kind != "f" or poses.ndim != 3 or poses.shape[1:] != (J, 3) or len(poses) == 0:
-        raise _fail(path, "poses", f"expected float [T >= 1, {J}, 3], got dtype {poses.dtype} shape {list(poses.shape)}")
+        raise format_error(path, "poses", f"expected float [T >= 1, {J}, 3], got dtype {poses.dtype} shape {list(poses.shape)}")
     if trans.dtype.kind != "f" or trans.shape != (len(poses), 3):
-        raise _fail(path, "trans", f"expected float [{len(poses)}, 3] (one per pose), got dtype {trans.dtype} shape {list(trans.shape)}")
+        raise format_error(path, "trans", f"expected float [{len(poses)}, 3] (one per pose), got dtype {trans.dtype} shape {list(trans.shape)}")
     for key, a in (("poses", poses), ("trans", trans)):
         bad = int((~np.isfinite(a)).sum())
         if bad:
-            raise _fail(path, key, f"{bad} value(s) are NaN or Inf")
+            raise format_error(path, key, f"{bad} value(s) are NaN or Inf")
     size = {"poses": np.linalg.norm(poses.astype(np.float64), axis=-1), "trans": np.abs(trans.astype(np.float64)).max(-1)}
     for key, limit, what in (("poses", MAX_ANGLE, "a rotation angle of"), ("trans", MAX_TRANS, "a translation of")):
         if size[key].max() > limit:
             at = np.unravel_index(np.argmax(size[key]), size[key].shape)
             where = f"frame {at[0]}" + (f", joint {str(names[at[1]])!r}" if key == "poses" else "")
-            raise _fail(path, key, f"{where}: {what} {float(size[key][at]):.3g} ({'rad' if key == 'poses' else 'm'}), "
+            raise format_error(path, key, f"{where}: {what} {float(size[key][at]):.3g} ({'rad' if key == 'poses' else 'm'}), "
                                    f"beyond {limit:g}")
     return Motion(name, poses.astype(np.float32), trans.astype(np.float32), tuple(names.tolist()), fps)
 

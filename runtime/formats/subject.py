@@ -35,15 +35,15 @@ from trioman.runtime.image_io import (
 )
 from trioman.runtime.formats.common import (
     FormatError,
-    _fail,
-    _is_int,
-    _is_number,
-    _load_json,
-    load_npz,
-    _plain_json,
-    _real,
-    write_npz,
+    as_real,
     check_header,
+    format_error,
+    is_int,
+    is_number,
+    load_json,
+    load_npz,
+    plain_json,
+    write_npz,
 )
 from trioman.runtime.skeleton import SkinnedMesh
 
@@ -188,42 +188,42 @@ class Subject:
 def check_subject_meta(meta: Any, where: Any) -> dict[str, Any]:
     get = check_header(meta, where, SUBJECT_FORMAT, SUBJECT_VERSION, "subject")
     if get("up_axis") != "z":
-        raise _fail(where, "up_axis", f"expected 'z', got {meta['up_axis']!r}")
+        raise format_error(where, "up_axis", f"expected 'z', got {meta['up_axis']!r}")
     for field in ("width", "height", "num_frames"):
         v = get(field)
-        if not _is_int(v) or v <= 0:
-            raise _fail(where, field, f"expected a positive integer, got {v!r}")
+        if not is_int(v) or v <= 0:
+            raise format_error(where, field, f"expected a positive integer, got {v!r}")
     bg = get("background")
-    if not (isinstance(bg, list) and len(bg) == 3 and all(_is_number(c) and 0.0 <= c <= 1.0 for c in bg)):
-        raise _fail(where, "background", f"expected [r, g, b] with values in [0, 1], got {bg!r}")
+    if not (isinstance(bg, list) and len(bg) == 3 and all(is_number(c) and 0.0 <= c <= 1.0 for c in bg)):
+        raise format_error(where, "background", f"expected [r, g, b] with values in [0, 1], got {bg!r}")
     phenotype = get("phenotype")
     if not isinstance(phenotype, dict):
-        raise _fail(where, "phenotype", f"expected an object of name -> number, got {type(phenotype).__name__}")
+        raise format_error(where, "phenotype", f"expected an object of name -> number, got {type(phenotype).__name__}")
     for k, v in phenotype.items():
-        if not _is_number(v):
-            raise _fail(where, f"phenotype.{k}", f"expected a finite number, got {v!r}")
+        if not is_number(v):
+            raise format_error(where, f"phenotype.{k}", f"expected a finite number, got {v!r}")
     if not isinstance(get("generator"), dict):
-        raise _fail(where, "generator", f"expected an object, got {type(meta['generator']).__name__}")
+        raise format_error(where, "generator", f"expected an object, got {type(meta['generator']).__name__}")
     if "capture_to_world" in meta:  # optional: imported captures
         _check_capture_to_world(meta["capture_to_world"], where)
     seqs = get("sequences")
     if not (isinstance(seqs, list) and seqs and all(isinstance(s, str) and s for s in seqs)):
-        raise _fail(where, "sequences", f"expected a non-empty list of non-empty names, got {seqs!r}")
+        raise format_error(where, "sequences", f"expected a non-empty list of non-empty names, got {seqs!r}")
     if len(set(seqs)) != len(seqs):
         dup = sorted({s for s in seqs if seqs.count(s) > 1})
-        raise _fail(where, "sequences", f"duplicate name(s) {dup}")
+        raise format_error(where, "sequences", f"duplicate name(s) {dup}")
     return meta
 
 
 def _check_capture_to_world(value: Any, where: Any) -> None:
     """A rotation matrix [3, 3] as nested lists: orthonormal within 1e-6, determinant +1."""
     ok = (isinstance(value, list) and len(value) == 3
-          and all(isinstance(row, list) and len(row) == 3 and all(_is_number(v) for v in row) for row in value))
+          and all(isinstance(row, list) and len(row) == 3 and all(is_number(v) for v in row) for row in value))
     if not ok:
-        raise _fail(where, "capture_to_world", f"expected a 3 x 3 rotation matrix (lists of numbers), got {value!r}")
+        raise format_error(where, "capture_to_world", f"expected a 3 x 3 rotation matrix (lists of numbers), got {value!r}")
     R = np.asarray(value, dtype=np.float64)
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
-        raise _fail(where, "capture_to_world", "not a rotation (R R^T != I or det(R) = -1)")
+        raise format_error(where, "capture_to_world", "not a rotation (R R^T != I or det(R) = -1)")
 
 
 def check_frames(
@@ -237,29 +237,29 @@ def check_frames(
         if key not in arrays or arrays[key] is None:
             if key == "poses_true":
                 continue
-            raise _fail(where, key, f"missing array (has: {sorted(k for k in arrays if arrays[k] is not None)})")
+            raise format_error(where, key, f"missing array (has: {sorted(k for k in arrays if arrays[k] is not None)})")
         a = np.asarray(arrays[key])
         if key in _STRING_ARRAYS:
             if a.dtype.kind != "U":
-                raise _fail(where, key, f"expected a unicode string array, got dtype {a.dtype}")
+                raise format_error(where, key, f"expected a unicode string array, got dtype {a.dtype}")
             if a.ndim != 1:
-                raise _fail(where, key, f"expected shape [N] = [{N}], got {list(a.shape)}")
+                raise format_error(where, key, f"expected shape [N] = [{N}], got {list(a.shape)}")
         else:
             if a.dtype.kind not in "fiu":
-                raise _fail(where, key, f"expected a float array, got dtype {a.dtype}")
+                raise format_error(where, key, f"expected a float array, got dtype {a.dtype}")
             want = shapes[key]
             if a.ndim != len(want) or a.shape[1:] != want[1:]:
                 if key in ("poses", "poses_true") and a.ndim == 3 and a.shape[2] == 3:
-                    raise _fail(where, key, f"{a.shape[1]} joints per frame, but body.npz has {J} joints")
+                    raise format_error(where, key, f"{a.shape[1]} joints per frame, but body.npz has {J} joints")
                 shown = "[" + ", ".join(["N"] + [str(s) for s in want[1:]]) + "]"
-                raise _fail(where, key, f"expected shape {shown}, got {list(a.shape)}")
+                raise format_error(where, key, f"expected shape {shown}, got {list(a.shape)}")
             a = a.astype(np.float32)
             bad = ~np.isfinite(a)
             if bad.any():
                 first = int(np.flatnonzero(bad.reshape(len(a), -1).any(axis=1))[0])
-                raise _fail(where, key, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), first in frame {first}")
+                raise format_error(where, key, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), first in frame {first}")
         if len(a) != N:
-            raise _fail(where, key, f"{len(a)} frames, but subject.json num_frames is {N}")
+            raise format_error(where, key, f"{len(a)} frames, but subject.json num_frames is {N}")
         a.setflags(write=False)
         out[key] = a
 
@@ -267,22 +267,22 @@ def check_frames(
     focal = np.minimum(K[:, 0, 0], K[:, 1, 1])
     if np.any(focal <= 0):
         i = int(np.flatnonzero(focal <= 0)[0])
-        raise _fail(where, "K", f"non-positive focal length in frame {i}: fx={K[i, 0, 0]}, fy={K[i, 1, 1]}")
+        raise format_error(where, "K", f"non-positive focal length in frame {i}: fx={K[i, 0, 0]}, fy={K[i, 1, 1]}")
     bottom = np.abs(K[:, 2] - np.array([0, 0, 1], np.float32)).max(axis=1)
     if np.any(bottom > LAST_ROW_TOL) or np.any(K[:, 1, 0] != 0):
         i = int(np.flatnonzero((bottom > LAST_ROW_TOL) | (K[:, 1, 0] != 0))[0])
-        raise _fail(where, "K", f"frame {i}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K[i].tolist()}")
+        raise format_error(where, "K", f"frame {i}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K[i].tolist()}")
     last = np.abs(viewmat[:, 3] - np.array([0, 0, 0, 1], np.float32)).max(axis=1)
     if np.any(last > LAST_ROW_TOL):
         i = int(np.flatnonzero(last > LAST_ROW_TOL)[0])
-        raise _fail(where, "viewmat", f"frame {i}: last row must be [0, 0, 0, 1], got {viewmat[i, 3].tolist()}")
+        raise format_error(where, "viewmat", f"frame {i}: last row must be [0, 0, 0, 1], got {viewmat[i, 3].tolist()}")
     R = viewmat[:, :3, :3].astype(np.float64)
     ortho = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
     bad = (ortho > ORTHONORMAL_TOL) | (det <= 0)
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
-        raise _fail(
+        raise format_error(
             where, "viewmat",
             f"frame {i}: rotation is not orthonormal with det +1 (max |R R^T - I| = {ortho[i]:.3g}, det = {det[i]:.4g})",
         )
@@ -290,21 +290,21 @@ def check_frames(
     split = out["split"]
     wrong = sorted(set(split.tolist()) - set(SPLITS))
     if wrong:
-        raise _fail(where, "split", f"values must be 'train' or 'test', got {wrong} ({int(np.isin(split, wrong).sum())} frames)")
+        raise format_error(where, "split", f"values must be 'train' or 'test', got {wrong} ({int(np.isin(split, wrong).sum())} frames)")
     seq = out["sequence"]
     used = set(seq.tolist())
     unknown = sorted(used - set(sequences))
     if unknown:
-        raise _fail(where, "sequence", f"name(s) {unknown} not listed in subject.json sequences {sequences}")
+        raise format_error(where, "sequence", f"name(s) {unknown} not listed in subject.json sequences {sequences}")
     unused = [s for s in sequences if s not in used]
     if unused:
-        raise _fail(where, "sequence", f"subject.json lists sequence(s) {unused} that no frame uses")
+        raise format_error(where, "sequence", f"subject.json lists sequence(s) {unused} that no frame uses")
     names = out["frame_names"].tolist()
     for i, name in enumerate(names):
         check_frame_name(name, where, f"frame_names: frame {i}")
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})[:5]
-        raise _fail(where, "frame_names", f"duplicate name(s) {dup}")
+        raise format_error(where, "frame_names", f"duplicate name(s) {dup}")
     return out
 
 
@@ -313,7 +313,7 @@ def check_frame_name(name: Any, where: Any, field: str) -> str:
     letters, digits, '_', '-' and '.', not starting with '.', at most 200 characters, so ``images/<name>.png``
     stays inside its folder. -> ``name``; a FormatError naming ``where`` and ``field`` otherwise."""
     if not (isinstance(name, str) and _FRAME_NAME.fullmatch(name)):
-        raise _fail(where, field, f"{name!r} is not a safe file stem (letters, digits, '_', '-', '.')")
+        raise format_error(where, field, f"{name!r} is not a safe file stem (letters, digits, '_', '-', '.')")
     return name
 
 
@@ -333,7 +333,7 @@ def load_subject(path: str | os.PathLike, check_images: bool = True) -> Subject:
     if not root.is_dir():
         raise FormatError(f"{root}: not a folder (a subject is a folder with {SUBJECT_JSON}, {BODY_NPZ}, {FRAMES_NPZ}, {IMAGES_DIR}/, {MASKS_DIR}/)")
     meta_path = root / SUBJECT_JSON
-    meta = check_subject_meta(_load_json(meta_path), meta_path)
+    meta = check_subject_meta(load_json(meta_path), meta_path)
 
     body_path = root / BODY_NPZ
     body_arrays = load_npz(body_path)
@@ -426,19 +426,19 @@ def save_subject(
     if frame_names is None:
         frame_names = [f"{i:06d}" for i in range(num_frames)]
     seq_order = list(dict.fromkeys(sequence.tolist()))
-    bg = [_real(c) for c in background]
+    bg = [as_real(c) for c in background]
     meta: dict[str, Any] = {
         "format": SUBJECT_FORMAT,
         "version": SUBJECT_VERSION,
         "body_model": body_model,
         "units": "m",
         "up_axis": "z",
-        "width": int(width) if _is_int(width) or isinstance(width, np.integer) else width,
-        "height": int(height) if _is_int(height) or isinstance(height, np.integer) else height,
+        "width": int(width) if is_int(width) or isinstance(width, np.integer) else width,
+        "height": int(height) if is_int(height) or isinstance(height, np.integer) else height,
         "num_frames": num_frames,
         "background": bg,
-        "phenotype": {str(k): _real(v) for k, v in dict(phenotype or {}).items()},
-        "generator": _plain_json(generator or {}, where, "generator"),
+        "phenotype": {str(k): as_real(v) for k, v in dict(phenotype or {}).items()},
+        "generator": plain_json(generator or {}, where, "generator"),
         "sequences": seq_order,
     }
     if capture_to_world is not None:

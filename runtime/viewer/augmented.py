@@ -20,7 +20,7 @@ import numpy as np
 
 from trioman.runtime.augment import AUGMENT_JSON, RECORDS_DIR
 from trioman.runtime.formats import FormatError, load_avatar, load_subject
-from trioman.runtime.formats.common import read_json
+from trioman.runtime.formats.common import is_int, read_json
 from trioman.runtime.formats.subject import IMAGES_DIR, check_frame_name
 from trioman.runtime.generator import GeneratorConfig, sample
 from trioman.runtime.image_io import read_png
@@ -52,10 +52,6 @@ def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], list[dict[str, An
     return {"settings": settings, "summary": summary if isinstance(summary, dict) else {}}, records
 
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
 def _check_settings(meta: Any, where: Path) -> dict[str, Any]:
     """augment.json's settings: the subject and avatar paths, per_frame and the Generator's settings."""
     settings = meta.get("settings") if isinstance(meta, dict) else None
@@ -65,7 +61,7 @@ def _check_settings(meta: Any, where: Path) -> dict[str, Any]:
         if not (isinstance(settings.get(key), dict) and isinstance(settings[key].get("path"), str)):
             raise FormatError(f"{where}: settings.{key}.path: missing or not a string")
     per_frame = settings.get("per_frame")
-    if not (_is_int(per_frame) and per_frame >= 1):
+    if not (is_int(per_frame) and per_frame >= 1):
         raise FormatError(f"{where}: settings.per_frame: expected an integer >= 1, got {per_frame!r}")
     generator = settings.get("generator")
     if not isinstance(generator, dict):
@@ -90,17 +86,17 @@ def _check_record(record: Any, where: Path, per_frame: int) -> dict[str, Any]:
     if not isinstance(record, dict):
         raise fail("record", "not an object")
     source = record.get("source")
-    if not (isinstance(source, dict) and _is_int(source.get("index")) and source["index"] >= 0):
+    if not (isinstance(source, dict) and is_int(source.get("index")) and source["index"] >= 0):
         raise fail("source.index", f"expected an integer >= 0, got {source.get('index') if isinstance(source, dict) else source!r}")
     check_frame_name(source.get("name"), where, "source.name")
-    if not (_is_int(record.get("seed")) and record["seed"] >= 0):
+    if not (is_int(record.get("seed")) and record["seed"] >= 0):
         raise fail("seed", f"expected an integer >= 0, got {record.get('seed')!r}")
     candidates = record.get("candidates")
     if not (isinstance(candidates, list) and len(candidates) == per_frame):
         got = f"{len(candidates)}" if isinstance(candidates, list) else repr(candidates)
         raise fail("candidates", f"expected a list of settings.per_frame = {per_frame} candidates, got {got}")
     for k, c in enumerate(candidates):
-        ok = (isinstance(c, dict) and _is_int(c.get("candidate")) and isinstance(c.get("status"), str)
+        ok = (isinstance(c, dict) and is_int(c.get("candidate")) and isinstance(c.get("status"), str)
               and (c.get("score") is None or (isinstance(c["score"], (int, float)) and not isinstance(c["score"], bool)
                                               and math.isfinite(c["score"]))))
         if not ok:
@@ -111,11 +107,11 @@ def _check_record(record: Any, where: Path, per_frame: int) -> dict[str, Any]:
     if not isinstance(frames, list):
         raise fail("frames", f"expected a list, got {frames!r}")
     for k, f in enumerate(frames):
-        if not (isinstance(f, dict) and _is_int(f.get("candidate"))):
+        if not (isinstance(f, dict) and is_int(f.get("candidate"))):
             raise fail(f"frames[{k}]", f"expected name (str) and candidate (int), got {f!r}")
         check_frame_name(f.get("name"), where, f"frames[{k}].name")
     chosen = record.get("chosen")
-    if not (chosen is None or _is_int(chosen)):
+    if not (chosen is None or is_int(chosen)):
         raise fail("chosen", f"expected an integer or null, got {chosen!r}")
     return record
 

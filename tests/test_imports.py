@@ -1,0 +1,149 @@
+"""The architecture as a test: the layers of docs/design.md and no private names across modules.
+
+Every import of every library and command module is read with ``ast``, those inside functions too.
+import-linter cannot hold these rules here: its import graph (grimp) walks only top-level packages,
+and setuptools' ``package-dir`` maps ``runtime/``, ``toolkit/``, ... into ``trioman`` from outside it.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NamedTuple
+
+ROOT = Path(__file__).resolve().parents[1]
+# Folder -> import name, top layer first (docs/design.md, "Layout and layering"). A module may import
+# its own layer and the layers below it.
+LAYERS = {"trioman": "trioman", "bench": "trioman.bench", "export": "trioman.export",
+          "toolkit": "trioman.toolkit", "runtime": "trioman.runtime"}
+FORBIDDEN_EXTERNAL = {"trioman.runtime": ("torch",)}
+
+# Violations that stay until their owner fixes them: "file:rule:imported" -> the reason. Fix one and
+# remove its entry (a stale entry fails); a new entry needs a reason and a higher ceiling.
+ORACLE = ("the float64 reference renderer, private by docs/design.md ('Renderer semantics'), the oracle of the "
+          "tests and benchmarks; goes when runtime/render/ gives it a public name")
+ALLOWED: dict[str, str] = {
+    "bench/deploy.py:private:trioman.runtime.render._reference": ORACLE,
+    "bench/raster.py:private:trioman.runtime.render._reference": ORACLE,
+    "bench/render.py:private:trioman.runtime.render._reference": ORACLE,
+    "bench/stability.py:private:trioman.runtime.render._reference": ORACLE,
+    "toolkit/render/rasterize.py:private:trioman.toolkit.render.projection._project":
+        "the torch projection's core, shared with the rasterizer; goes when toolkit/render/projection.py makes it public",
+}
+ALLOWED_CEILING = 5
+
+
+class Import(NamedTuple):
+    path: Path
+    line: int
+    module: str  # the importing module
+    target: str  # the imported module
+    name: str | None  # the imported name, for `from target import name`
+
+
+def module_name(path: Path) -> str:
+    """The import name of a library file: ``runtime/render/tiles.py`` -> ``trioman.runtime.render.tiles``."""
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = [LAYERS[rel.parts[0]], *rel.parts[1:]]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> Iterator[Import]:
+    """Every import in ``path``, at any depth, with relative imports resolved."""
+    module = module_name(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield Import(path, node.lineno, module, alias.name, None)
+        elif isinstance(node, ast.ImportFrom):
+            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+            target = ".".join(p for p in (base, node.module) if p)
+            for alias in node.names:
+                yield Import(path, node.lineno, module, target, alias.name)
+
+
+def layer(module: str) -> int | None:
+    """The layer index of one of our modules (0 = top), None for anything else."""
+    if module.split(".")[0] != "trioman" or module == "trioman":  # the root package: __version__, under every layer
+        return None
+    return max(i for i, name in enumerate(LAYERS.values()) if within(module, name))
+
+
+def is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def is_submodule(target: str, name: str) -> bool:
+    """Whether ``from target import name`` imports a module (a file or a package of ours)."""
+    folder, base = max(((f, n) for f, n in LAYERS.items() if within(target, n)), key=lambda fn: len(fn[1]))
+    path = ROOT / folder / Path(*target[len(base):].split(".")) / name
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def violations(imp: Import) -> Iterator[tuple[str, str]]:
+    """(rule, what) for each rule ``imp`` breaks."""
+    own = layer(imp.module)
+    for prefix, banned in FORBIDDEN_EXTERNAL.items():
+        if (imp.module + ".").startswith(prefix + ".") and imp.target.split(".")[0] in banned:
+            yield "forbidden", imp.target
+    if layer(imp.target) is None:
+        return
+    if layer(imp.target) < own:
+        yield "layers", imp.target
+    # A private module is private to its package; a private name to its module.
+    parts = imp.target.split(".")
+    if any(is_private(p) and not within(imp.module, ".".join(parts[:i])) for i, p in enumerate(parts)):
+        yield "private", imp.target
+    elif imp.name is not None and is_private(imp.name):
+        if not (is_submodule(imp.target, imp.name) and within(imp.module, imp.target)):
+            yield "private", f"{imp.target}.{imp.name}"
+
+
+def found() -> dict[str, str]:
+    """Every violation: "file:rule:imported" -> "file:line: message"."""
+    out = {}
+    for folder in LAYERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for imp in imports(path):
+                for rule, what in violations(imp):
+                    rel = path.relative_to(ROOT)
+                    out.setdefault(f"{rel}:{rule}:{what}", f"{rel}:{imp.line}: {rule}: {imp.module} imports {what}")
+    return out
+
+
+def test_imports_keep_the_layers_and_private_names():
+    bad = found()
+    new = [msg for key, msg in bad.items() if key not in ALLOWED]
+    assert not new, "import rules broken (docs/design.md, 'Layout and layering'):\n" + "\n".join(new)
+
+
+def test_allowlist_only_shrinks():
+    bad = found()
+    stale = [key for key in ALLOWED if key not in bad]
+    assert not stale, "fixed, remove from ALLOWED (and lower ALLOWED_CEILING):\n" + "\n".join(stale)
+    assert len(ALLOWED) <= ALLOWED_CEILING
+
+
+def test_the_rules_catch_what_they_should():
+    runtime = ROOT / "runtime" / "avatar.py"
+    checks = {
+        ("trioman.torch", "torch", None): [],
+        ("trioman.runtime.avatar", "torch.nn", None): [("forbidden", "torch.nn")],
+        ("trioman.runtime.avatar", "trioman.toolkit.cpu", None): [("layers", "trioman.toolkit.cpu")],
+        ("trioman.toolkit.cpu", "trioman.runtime.ply", "_x"): [("private", "trioman.runtime.ply._x")],
+        ("trioman.bench.raster", "trioman.runtime.render._reference", None):
+            [("private", "trioman.runtime.render._reference")],
+        ("trioman.runtime.render", "trioman.runtime.render", "_reference"): [],
+        ("trioman.toolkit.cpu", "trioman.runtime.render", "_reference"):
+            [("private", "trioman.runtime.render._reference")],
+        ("trioman.cli", "trioman.bench.common", None): [],
+        ("trioman.runtime.augment", "trioman", "__version__"): [],
+    }
+    for (module, target, name), expected in checks.items():
+        assert list(violations(Import(runtime, 1, module, target, name))) == expected, (module, target, name)
