@@ -9,24 +9,15 @@ then linear blend skinning with the one sparse LBS of the runtime (``runtime.ske
 from __future__ import annotations
 
 import os
-from typing import Any, Mapping, NamedTuple
+from typing import Any, Mapping
 
 import numpy as np
 
+from trioman.runtime.gaussians import Gaussians
 from trioman.runtime.rotations import matrix_to_quat, quat_to_matrix
 from trioman.runtime.skeleton import Skeleton, apply_transforms, blend_transforms
 
 SCALE_CLAMP = (-12.0, 2.0)  # log-scale clamp applied before exp (as GaussianAvatar does)
-
-
-class Gaussians(NamedTuple):
-    """Activated Gaussians, the renderer's arguments in its order (numpy float32)."""
-
-    means: np.ndarray  # [N, 3] world (m)
-    quats: np.ndarray  # [N, 4] wxyz, unit
-    scales: np.ndarray  # [N, 3] activated (m)
-    opacities: np.ndarray  # [N] in [0, 1]
-    colors: np.ndarray  # [N, 3] in [0, 1]
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
@@ -116,7 +107,7 @@ class Avatar:
 
     def posed_ply(self, pose: np.ndarray, trans: np.ndarray, path: str | os.PathLike, pose_dependent: bool = True) -> None:
         """Write the Gaussians at a pose as a standard 3DGS .ply (trioman.runtime.ply.write_ply)."""
-        from trioman.runtime.ply import write_ply
+        from trioman.runtime.ply import write_ply  # ply needs runtime.formats, whose package loads this module
 
         write_ply(path, *self.gaussians(pose, trans, pose_dependent))
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from trioman.runtime.avatar import Gaussians
 from trioman.runtime.formats.common import FormatError
+from trioman.runtime.gaussians import Gaussians
 from trioman.runtime.image_io import atomic_write_bytes
 
 SH_C0 = 0.28209479177387814

@@ -1,4 +1,4 @@
-"""The architecture as a test: the layers of docs/design.md and no private names across modules.
+"""The architecture as a test: the layers of docs/design.md, no private names across modules, no import cycles.
 
 Every import of every library and command module is read with ``ast``, those inside functions too.
 import-linter cannot hold these rules here: its import graph (grimp) walks only top-level packages,
@@ -117,6 +117,39 @@ def found() -> dict[str, str]:
     return out
 
 
+def graph() -> dict[str, set[str]]:
+    """Module -> the modules of ours it imports (``from package import module`` counts the module)."""
+    paths = {module_name(p): p for folder in LAYERS for p in sorted((ROOT / folder).rglob("*.py"))}
+    edges: dict[str, set[str]] = {m: set() for m in paths}
+    for module, path in paths.items():
+        for imp in imports(path):
+            target = f"{imp.target}.{imp.name}" if f"{imp.target}.{imp.name}" in paths else imp.target
+            if target in paths and target != module:
+                edges[module].add(target)
+    return edges
+
+
+def cycle(edges: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle (its modules, the first repeated at the end), or None."""
+    done: set[str] = set()
+
+    def visit(module: str, path: list[str]) -> list[str] | None:
+        if module in path:
+            return path[path.index(module):] + [module]
+        if module in done:
+            return None
+        found = next(filter(None, (visit(t, path + [module]) for t in sorted(edges[module]))), None)
+        done.add(module)
+        return found
+
+    return next(filter(None, (visit(m, []) for m in sorted(edges))), None)
+
+
+def test_no_import_cycles():
+    found = cycle(graph())
+    assert found is None, "import cycle (imports inside functions count): " + " -> ".join(found)
+
+
 def test_imports_keep_the_layers_and_private_names():
     bad = found()
     new = [msg for key, msg in bad.items() if key not in ALLOWED]
@@ -147,3 +180,5 @@ def test_the_rules_catch_what_they_should():
     }
     for (module, target, name), expected in checks.items():
         assert list(violations(Import(runtime, 1, module, target, name))) == expected, (module, target, name)
+    assert cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == ["a", "b", "c", "a"]
+    assert cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
