@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import Callable, Collection, NamedTuple
 
 import cv2
 import numpy as np
@@ -129,10 +129,13 @@ class Aligner:
                                for p in range(len(views))])
         self._cache: OrderedDict[int, _Posed] = OrderedDict()
 
-    def sources_for(self, own: int, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray) -> list[int]:
-        """The draw's own frame first, then the frames whose camera sees the body from the nearest direction."""
+    def sources_for(self, own: int, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray,
+                    exclude: Collection[int] = ()) -> list[int]:
+        """The draw's own frame first, then the frames whose camera sees the body from the nearest direction
+        (none of ``exclude``)."""
         d = _direction_in_body(self.mesh, pose, trans, viewmat)
-        order = [int(p) for p in np.argsort(-(self._dirs @ d), kind="stable") if int(p) != own]
+        skip = {int(own), *map(int, exclude)}
+        order = [int(p) for p in np.argsort(-(self._dirs @ d), kind="stable") if int(p) not in skip]
         return [own] + order[: self.cfg.sources - 1]
 
     def _posed(self, p: int) -> _Posed:
@@ -150,9 +153,10 @@ class Aligner:
         return posed
 
     def align(self, own: int, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray, K: np.ndarray,
-              coarse: np.ndarray | None = None) -> Aligned:
+              coarse: np.ndarray | None = None, exclude: Collection[int] = ()) -> Aligned:
         """The aligned reference at a draw (pose [J, 3], trans [3], viewmat [4, 4], K [3, 3]) of source frame
-        position ``own``; ``coarse`` [H, W, 3]: the avatar's render at the draw, to re-align to (cfg.flow)."""
+        position ``own``; ``coarse`` [H, W, 3]: the avatar's render at the draw, to re-align to (cfg.flow);
+        ``exclude``: positions never used as the other sources (a Refiner's target frame)."""
         cfg, W, H = self.cfg, self.views.width, self.views.height
         verts = self.mesh.pose(np.asarray(pose, np.float64), np.asarray(trans, np.float64))
         frags = rasterize_mesh(verts, self.faces, viewmat, K, W, H)
@@ -163,7 +167,7 @@ class Aligner:
         acc = np.zeros((H, W, 3), np.float64)
         wsum = np.zeros((H, W), np.float64)
         own_xy = None
-        for p in self.sources_for(own, pose, trans, viewmat):
+        for p in self.sources_for(own, pose, trans, viewmat, exclude):
             src = self._posed(p)
             pts = interpolate(frags, src.vertices, self.faces)[body].astype(np.float64)  # [M, 3]
             nrm = interpolate(frags, src.normals, self.faces)[body].astype(np.float64)

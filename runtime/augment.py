@@ -59,7 +59,7 @@ from trioman.runtime.image_io import (
     atomic_path, atomic_write_bytes, atomic_write_text, is_temp_name, remove_temp_files, write_png,
 )
 from trioman.runtime.pseudo_gt import STAGES as _STEP_STAGES
-from trioman.runtime.pseudo_gt import MASKS, PseudoConfig, Source, make_pseudo_frames
+from trioman.runtime.pseudo_gt import MASKS, PseudoConfig, Source, make_pseudo_frames, needs_aligner
 from trioman.runtime.render import rasterize
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
@@ -346,7 +346,7 @@ def augment(
     if merge:
         return _merge(out, subj, selection, check_shards(out, {**settings, "limit": limit}), settings, ex_model is not None,
                       threshold)
-    step = _Step(av, ref_model, ex_model, _aligner(subj, views_of, pseudo), pseudo,
+    step = _Step(av, ref_model, ex_model, _aligner(subj, views_of, pseudo, ref_model), pseudo,
                  {int(i): p for p, i in enumerate(views_of)}, seed, per_frame, gen_cfg)
     if shard is not None:
         with shard_run(top, shard, {**settings, "limit": limit}, shard.take(names)):
@@ -375,9 +375,9 @@ class _Step:
         return self.pseudo.kind == "aligned"
 
 
-def _aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig) -> Aligner | None:
+def _aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig, refiner: Any) -> Aligner | None:
     """The aligned reference over the subject's frames ``indices`` (when the pseudo-GT needs it)."""
-    if not pseudo.needs_aligner:
+    if not needs_aligner(pseudo, None if refiner is None else refiner.conditions):
         return None
 
     def image(p: int) -> np.ndarray:

@@ -37,7 +37,8 @@ REQUIRED_KEYS = ("format", "format_version", "kind", "precision", "input_size", 
 
 REFINER_INPUTS = ("coarse", "reference", "normal")  # graph inputs in view order (toolkit.refiner.INPUT_NAMES)
 REFINER_OUTPUT = "refined"
-REFINER_VIEWS = {"none": 1, "tex": 2, "tex+geo": 3}  # conditions -> V
+REFINER_VIEWS = {"none": 1, "tex": 2, "tex+geo": 3, "warp": 2, "warp+geo": 3}  # conditions -> V
+ALIGNED_CONDITIONS = ("warp", "warp+geo")  # the reference input is the geometry-aligned reference (runtime/aligned.py)
 EXAMINER_INPUTS = ("candidate", "reference")
 EXAMINER_OUTPUT = "score"
 
@@ -251,7 +252,7 @@ class _Model:
 class RefinerModel(_Model):
     """The exported Refiner. ``refine`` takes HWC images in [0, 1] of exactly ``size`` = (H, W).
 
-    ``conditions`` ("none", "tex", "tex+geo") says which of coarse / reference / normal the graph takes
+    ``conditions`` ("none", "tex", "tex+geo", "warp", "warp+geo") says which of coarse / reference / normal the graph takes
     (``input_names``); inputs it does not take are ignored. The graph's raw output holds every view
     [B, V, 3, H, W]; ``refine`` returns the refined coarse view (view 0).
     """
@@ -298,8 +299,9 @@ class RefinerModel(_Model):
         """HWC float images in [0, 1], each [H, W, 3] or [B, H, W, 3] with (H, W) = ``size`` -> the refined
         coarse view, the shape of ``coarse``, float32 clipped to [0, 1].
 
-        ``reference`` (a real frame near the view) is required with conditions "tex" and "tex+geo",
-        ``normal`` (the body normal map) with "tex+geo"; unused inputs are ignored.
+        ``reference`` is required with conditions "tex" and "tex+geo" (a real frame near the view) and "warp",
+        "warp+geo" (the aligned reference, filled with the coarse render where nothing was carried),
+        ``normal`` (the body normal map) with "tex+geo" and "warp+geo"; unused inputs are ignored.
         """
         singles = {}
 

@@ -18,10 +18,11 @@ import numpy as np
 
 from trioman.runtime.aligned import Aligned, Aligner
 from trioman.runtime.generator import Candidate, keep_detail
+from trioman.runtime.models import ALIGNED_CONDITIONS
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.skeleton import SkinnedMesh
 
-__all__ = ["KINDS", "MASKS", "STAGES", "PseudoConfig", "Source", "PseudoFrames", "make_pseudo_frames"]
+__all__ = ["KINDS", "MASKS", "STAGES", "PseudoConfig", "Source", "PseudoFrames", "make_pseudo_frames", "needs_aligner"]
 
 # coarse: the avatar's render; aligned: the render with real pixels carried through the body mesh where
 # known; refined / examined: the Refiner's output (examined: the Examiner's pick); truth: the subject's own
@@ -65,8 +66,15 @@ class PseudoConfig:
             raise ValueError(f"unknown_weight: must lie in [0, 1], got {self.unknown_weight!r}")
 
     @property
-    def needs_aligner(self) -> bool:
-        return self.kind == "aligned" or self.mask == "carried"
+    def refined(self) -> bool:
+        return self.kind in ("refined", "examined")
+
+
+def needs_aligner(cfg: PseudoConfig, refiner_conditions: str | None = None) -> bool:
+    """Whether the step needs the aligned reference: kind aligned, the carried mask (truth brings its own),
+    or a Refiner conditioned on it."""
+    return (cfg.kind == "aligned" or (cfg.mask == "carried" and cfg.kind != "truth")
+            or (cfg.refined and refiner_conditions in ALIGNED_CONDITIONS))
 
 
 class Source(NamedTuple):
@@ -116,14 +124,17 @@ def make_pseudo_frames(
     render(c) -> (rgb [H, W, 3] over the background, alpha [H, W]); truth(c, K) -> (rgb [H, W, 3] on black,
     mask [H, W]) (kind "truth"). Kinds refined / examined need ``refiner`` (and ``body`` for its geometry
     condition), examined with more than one candidate or a threshold ``examiner``; ``aligner`` whenever
-    ``cfg.needs_aligner``.
+    ``needs_aligner``.
     """
-    if cfg.kind in ("refined", "examined") and refiner is None:
+    if cfg.refined and refiner is None:
         raise ValueError(f"refiner: kind {cfg.kind!r} needs a Refiner")
     if cfg.kind == "truth" and truth is None:
         raise ValueError("truth: kind 'truth' needs the subject's own renderer (synthetic subjects only)")
-    if cfg.needs_aligner and aligner is None:
-        raise ValueError(f"aligner: kind {cfg.kind!r} with mask {cfg.mask!r} needs an Aligner")
+    conditions = refiner.conditions if cfg.refined else None
+    align = needs_aligner(cfg, conditions)
+    if align and aligner is None:
+        raise ValueError(f"aligner: kind {cfg.kind!r} with mask {cfg.mask!r}"
+                         f"{f' and a {conditions!r} Refiner' if conditions else ''} needs an Aligner")
     t = time.perf_counter()
     bg = np.asarray(source.background, np.float32)
     K = np.asarray(source.K, np.float64)
@@ -132,23 +143,23 @@ def make_pseudo_frames(
     alpha = np.stack([np.asarray(a, np.float32) for _, a in renders])
     t = _tick(seconds, "render", t)
     aligned: list[Aligned | None] = [None] * len(candidates)
-    if cfg.needs_aligner:
+    if align:
         aligned = [aligner.align(source.position, c.pose, c.trans, c.viewmat, K, coarse[k])
                    for k, c in enumerate(candidates)]
         t = _tick(seconds, "align", t)
     content = coarse
-    if cfg.kind == "aligned":
+    if cfg.kind == "aligned" or conditions in ALIGNED_CONDITIONS:
         content = np.stack([np.where(a.valid[..., None], a.rgb, x) for a, x in zip(aligned, coarse)])
-    elif cfg.kind in ("refined", "examined"):
+    if cfg.refined:
         normal = None
-        if refiner.conditions == "tex+geo":
+        if conditions.endswith("+geo"):
             if body is None:
                 raise ValueError("body: a Refiner with the geometry condition needs the subject's body mesh")
             H, W = coarse.shape[1:3]
             normal = np.stack([body_normal_map(body, c.pose, c.trans, c.viewmat, K, W, H).rgb
                                for c in candidates]).astype(np.float32)
             t = _tick(seconds, "normal", t)
-        reference = None if refiner.conditions == "none" else np.ascontiguousarray(
+        reference = content if conditions in ALIGNED_CONDITIONS else None if conditions == "none" else np.ascontiguousarray(
             np.broadcast_to(np.asarray(source.real, np.float32), coarse.shape))
         content = np.asarray(refiner.refine(coarse, reference=reference, normal=normal), dtype=np.float32)
         if content.shape != coarse.shape:

@@ -33,7 +33,8 @@ def nchw(x: np.ndarray) -> torch.Tensor:
 
 def refiner_batch(t: Tuples) -> RefinerBatch:
     ref = nchw(t.reference)
-    return RefinerBatch(coarse=nchw(t.coarse), reference=ref, normal=nchw(t.normal), target=nchw(t.gt), reference_target=ref)
+    return RefinerBatch(coarse=nchw(t.coarse), reference=ref, normal=nchw(t.normal), target=nchw(t.gt), reference_target=ref,
+                        aligned=None if t.aligned is None else nchw(t.aligned))
 
 
 def examiner_batch(t: Tuples) -> ExaminerBatch:
@@ -82,7 +83,8 @@ def cut(t: Tuples, side: int | None, windows: tuple[np.ndarray, np.ndarray] | No
     """Sample b's images cut at window b (``crop_windows``); ``t`` itself for None."""
     if windows is None:
         return t
-    return Tuples(*(np.stack([a[b, y:y + side, x:x + side] for b, (y, x) in enumerate(zip(*windows))]) for a in t))
+    return Tuples(*(None if a is None else np.stack([a[b, y:y + side, x:x + side] for b, (y, x) in enumerate(zip(*windows))])
+                    for a in t))
 
 
 def random_crop(t: Tuples, side: int | None, rng: np.random.Generator) -> Tuples:

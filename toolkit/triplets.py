@@ -13,6 +13,13 @@ A triplet file is one .npz of plain arrays (no pickle):
     split     [N] str      "train" / "test"
     sequence  [N] str      motion sequence
     view_yaw  [N] float32  the body's facing direction seen from the camera (radians, 0 = facing it)
+    aligned   [N, H, W, 3] uint8   (version >= 2) real pixels carried to frame T through the body mesh from
+                                   other training frames (runtime/aligned.py), 0 where none was carried
+    valid     [N, H, W]    uint8   (version >= 2) 255 where ``aligned`` holds a carried pixel
+    aligned_from [N] int32 (version >= 2) the own source frame of ``aligned``: a training frame T+k of
+                                   T's sequence (0 < |k| <= ALIGN_K), as a Generator draw has its source
+                                   frame; the other sources are the training frames (never T) that see
+                                   the body from the nearest direction
 
 ``TripletSet`` samples training tuples and, for evaluation on test frames, picks as texture reference
 the training frame that sees the body from the most similar direction (what the runtime's augment
@@ -33,8 +40,10 @@ from trioman.runtime.image_io import atomic_path
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.rotations import axis_angle_to_matrix
 
-TRIPLETS_VERSION = 1
+TRIPLETS_VERSION = 2
 _ARRAYS = ("meta", "gt", "mask", "coarse", "normal", "frame", "split", "sequence", "view_yaw")
+_ALIGNED_ARRAYS = ("aligned", "valid", "aligned_from")  # version >= 2
+ALIGN_K = 4  # |k| of the own source frame of a triplet's aligned reference
 _FORWARD = np.array([0.0, -1.0, 0.0])  # the rest body faces -y (runtime/cameras.py)
 
 
@@ -48,6 +57,46 @@ def view_yaw(root_pose: np.ndarray, viewmat: np.ndarray) -> np.ndarray:
 
 def _u8(img: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+
+
+def _own_source(split: np.ndarray, sequence: np.ndarray, i: int, rng: np.random.Generator) -> int | None:
+    """A training frame of frame i's sequence at 0 < |k| <= ALIGN_K (drawn), None when there is none."""
+    lo, hi = max(0, i - ALIGN_K), min(len(split), i + ALIGN_K + 1)
+    cand = [j for j in range(lo, hi) if j != i and split[j] == "train" and sequence[j] == sequence[i]]
+    return int(rng.choice(cand)) if cand else None
+
+
+def aligned_references(subject, coarse: np.ndarray, seed: int = 0,
+                       progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame T's aligned reference from the subject's other training frames (module doc).
+    coarse [N, H, W, 3] uint8 (the render flow re-aligns to) -> (aligned uint8 [N, H, W, 3], valid uint8
+    [N, H, W], aligned_from int32 [N])."""
+    from tqdm import tqdm
+
+    from trioman.runtime.aligned import Aligner, SourceViews
+
+    split, sequence = np.asarray(subject.split), np.asarray(subject.sequence)
+    train = np.nonzero(split == "train")[0]
+    if len(train) < 2:
+        raise ValueError(f"{subject.root}: split: {len(train)} training frame(s); aligned references need at least 2")
+    pos = {int(f): p for p, f in enumerate(train)}
+    views = SourceViews(lambda p: subject.image(int(train[p])) * subject.mask(int(train[p]))[..., None],
+                        lambda p: subject.mask(int(train[p])), np.asarray(subject.poses)[train], np.asarray(subject.trans)[train],
+                        np.asarray(subject.viewmat)[train], np.asarray(subject.K)[train], subject.width, subject.height)
+    aligner = Aligner(subject.body, views)
+    n, H, W = len(coarse), subject.height, subject.width
+    aligned, valid = np.zeros((n, H, W, 3), np.uint8), np.zeros((n, H, W), np.uint8)
+    source = np.empty(n, np.int32)
+    rng = np.random.default_rng(seed)
+    for i in tqdm(range(n), desc="aligned references", unit="frame", disable=None if progress else True):
+        pose, trans, viewmat = (np.asarray(a[i]) for a in (subject.poses, subject.trans, subject.viewmat))
+        exclude = [pos[i]] if i in pos else []
+        own = _own_source(split, sequence, i, rng)
+        if own is None:  # no training frame nearby in the sequence: the one seeing the body most alike
+            own = int(train[aligner.sources_for(-1, pose, trans, viewmat, exclude)[1]])
+        a = aligner.align(pos[own], pose, trans, viewmat, np.asarray(subject.K[i]), coarse[i] / np.float32(255.0), exclude)
+        aligned[i], valid[i], source[i] = _u8(a.rgb), a.valid.astype(np.uint8) * 255, own
+    return aligned, valid, source
 
 
 def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> Path:
@@ -75,6 +124,7 @@ def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> P
         split=np.array(subject.split, dtype=np.str_), sequence=np.array(subject.sequence, dtype=np.str_),
         view_yaw=view_yaw(np.array(subject.poses[:, 0]), np.array(subject.viewmat)),
     )
+    arrays["aligned"], arrays["valid"], arrays["aligned_from"] = aligned_references(subject, arrays["coarse"], progress=progress)
     out = Path(out)
     with atomic_path(out, suffix=".npz") as tmp:
         with open(tmp, "wb") as f:
@@ -90,6 +140,7 @@ class Tuples(NamedTuple):
     normal: np.ndarray  # [B, H, W, 3] I_g^T
     reference: np.ndarray  # [B, H, W, 3] I^{T+k} (or the nearest-view training frame)
     mask: np.ndarray  # [B, H, W] mask of I^T
+    aligned: np.ndarray | None = None  # [B, H, W, 3] T's aligned reference, the coarse render where nothing was carried
 
 
 @dataclass(eq=False)
@@ -104,6 +155,8 @@ class TripletSet:
     group: np.ndarray  # [N] "<file index>/<sequence>": frames that may pair as T and T+k
     subject: np.ndarray  # [N] file index
     view_yaw: np.ndarray
+    aligned: np.ndarray | None = None  # [N, H, W, 3] uint8, the aligned reference filled with ``coarse``; None
+    # when a file lacks it (version 1)
 
     @classmethod
     def load(cls, paths: list[str | Path]) -> "TripletSet":
@@ -117,6 +170,11 @@ class TripletSet:
             for key in ("gt", "coarse", "normal", "mask", "split", "sequence", "view_yaw"):
                 if len(a[key]) != n:
                     raise FormatError(f"{p}: {key}: {len(a[key])} entries for {n} frames")
+            if all(key in a for key in _ALIGNED_ARRAYS):
+                if a["aligned"].shape != a["coarse"].shape or a["valid"].shape != a["mask"].shape:
+                    raise FormatError(f"{p}: aligned/valid: shapes {a['aligned'].shape}/{a['valid'].shape} differ from "
+                                      f"coarse/mask {a['coarse'].shape}/{a['mask'].shape}")
+                a["aligned"] = np.where(a["valid"][..., None] > 127, a["aligned"], a["coarse"])
             a["group"] = np.char.add(f"{s}/", a["sequence"])
             a["subject"] = np.full(n, s, np.int32)
             parts.append(a)
@@ -127,6 +185,8 @@ class TripletSet:
             raise FormatError(f"triplets: image sizes differ between files: {sorted(shapes)}")
         cat = {k: np.concatenate([x[k] for x in parts]) for k in
                ("gt", "mask", "coarse", "normal", "split", "group", "subject", "view_yaw")}
+        if all("aligned" in x for x in parts):
+            cat["aligned"] = np.concatenate([x["aligned"] for x in parts])
         return cls(**cat)
 
     def __len__(self) -> int:
@@ -145,7 +205,7 @@ class TripletSet:
             return np.stack([cv2.resize(x, (side, side), interpolation=cv2.INTER_AREA) for x in a])
 
         return TripletSet(rs(self.gt), rs(self.mask), rs(self.coarse), rs(self.normal), self.split, self.group,
-                          self.subject, self.view_yaw)
+                          self.subject, self.view_yaw, None if self.aligned is None else rs(self.aligned))
 
     def partners(self, i: int, k_max: int) -> np.ndarray:
         """Frames T+k of the same subject and sequence with 0 < |k| <= k_max (by position in the file)."""
@@ -164,7 +224,8 @@ class TripletSet:
 
     def take(self, t: np.ndarray, ref: np.ndarray) -> Tuples:
         f = np.float32(1.0 / 255.0)
-        return Tuples(self.gt[t] * f, self.coarse[t] * f, self.normal[t] * f, self.gt[ref] * f, self.mask[t] * f)
+        aligned = None if self.aligned is None else self.aligned[t] * f
+        return Tuples(self.gt[t] * f, self.coarse[t] * f, self.normal[t] * f, self.gt[ref] * f, self.mask[t] * f, aligned)
 
     def draw(self, rng: np.random.Generator, batch: int, k_max: int = 4, split: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The frame indices of a random batch, (T [batch], T+k [batch]): T uniform over the frames (of

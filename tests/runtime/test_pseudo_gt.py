@@ -6,7 +6,7 @@ import pytest
 from tests.runtime.test_aligned import FRONT, K, MESH, POSE, SIZE, TRANS, paint, views
 from trioman.runtime.aligned import AlignConfig, Aligner
 from trioman.runtime.generator import GeneratorConfig, sample
-from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
+from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames, needs_aligner
 
 BG = np.array([0.2, 0.4, 0.6], np.float32)
 
@@ -105,6 +105,36 @@ def test_refined_and_examined_feed_the_models_and_pick_the_best():
     dropped = make_pseudo_frames(cands, src, junk_render, PseudoConfig("examined", mask="alpha", threshold=0.9),
                                  refiner=ref, examiner=_PreferSecond())
     assert dropped.kept == [] and dropped.chosen == 1
+
+
+class _Warp(_Brighten):
+    conditions = "warp+geo"
+
+    def refine(self, coarse, reference=None, normal=None):
+        self.seen = (reference, normal)
+        return np.clip(reference + 0.1, 0, 1)
+
+
+def test_a_warp_refiner_refines_the_aligned_reference():
+    """A "warp*" Refiner gets the aligned kind's image (real pixels where carried, the render elsewhere) as its
+    reference, and the body's normal map; its output is the pseudo-GT."""
+    ref, cands = _Warp(), draws(2, seed=3)
+    made = make_pseudo_frames(cands, source(), junk_render, PseudoConfig("refined"), body=MESH, aligner=aligner(),
+                              refiner=ref)
+    plain = make_pseudo_frames(cands, source(), junk_render, PseudoConfig("aligned", unknown_weight=1.0), aligner=aligner())
+    reference, normal = ref.seen
+    body = made.masks == 1
+    np.testing.assert_allclose(reference[body], plain.images[body], atol=1e-6)
+    assert normal.shape == reference.shape and np.abs(normal[body] - 0.5).max() > 0.2  # normals drawn on the body
+    np.testing.assert_allclose(made.images[body], np.clip(reference[body] + 0.1, 0, 1), atol=1e-6)
+    assert np.all(made.weights == 1) and len(made.coverage) == 2
+    with pytest.raises(ValueError, match="'warp\\+geo' Refiner needs an Aligner"):
+        make_pseudo_frames(cands, source(), junk_render, PseudoConfig("refined", mask="alpha"), body=MESH, refiner=ref)
+
+
+def test_truth_needs_no_aligner():
+    assert not needs_aligner(PseudoConfig("truth")) and needs_aligner(PseudoConfig("coarse"))
+    assert needs_aligner(PseudoConfig("refined", mask="alpha"), "warp") and not needs_aligner(PseudoConfig("refined", mask="alpha"), "tex")
 
 
 @pytest.mark.parametrize("cfg, kw, match", [

@@ -75,3 +75,51 @@ def test_frame_subset_and_bad_files(triplet_file, tmp_path):
     np.savez(bad, gt=np.zeros((1, 2, 2, 3), np.uint8))
     with pytest.raises(FormatError, match="meta: missing array"):
         TripletSet.load([bad])
+
+
+def test_aligned_references_come_from_other_training_frames(triplet_file):
+    """Every frame's aligned reference: an own source frame T+k of its sequence in the train split
+    (0 < |k| <= ALIGN_K), never T; carried pixels only on the body, and close to T's own image there
+    (the subject's texture is painted on the body, so carried real pixels are near the truth)."""
+    from trioman.runtime.formats.common import load_npz
+    from trioman.toolkit.triplets import ALIGN_K
+
+    path, subject = triplet_file
+    a = load_npz(path)
+    src, valid = a["aligned_from"], a["valid"] > 127
+    split, seq = np.asarray(subject.split), np.asarray(subject.sequence)
+    for i, j in enumerate(src):
+        assert j != i and split[j] == "train"
+        if any(split[k] == "train" and seq[k] == seq[i] and k != i for k in range(max(0, i - ALIGN_K), i + ALIGN_K + 1)
+               if k < len(split)):
+            assert 0 < abs(int(j) - i) <= ALIGN_K and seq[j] == seq[i]
+    assert valid.mean(axis=(1, 2)).min() > 0.02  # some body pixels carried in every frame
+    assert np.all(a["aligned"][~valid] == 0) and np.all((a["mask"][valid] > 0))
+    gt, aligned = a["gt"].astype(np.float64), a["aligned"].astype(np.float64)
+    err_aligned = np.abs(aligned - gt)[valid].mean()
+    err_coarse = np.abs(a["coarse"].astype(np.float64) - gt)[valid].mean()
+    assert err_aligned < err_coarse  # a 3-step avatar renders far from the truth; carried pixels do not
+    ts = TripletSet.load([path])
+    fused = ts.take(np.arange(len(ts)), np.arange(len(ts))).aligned
+    np.testing.assert_array_equal(fused[~valid], ts.coarse[~valid] * np.float32(1 / 255))
+    np.testing.assert_array_equal(fused[valid], a["aligned"][valid] * np.float32(1 / 255))
+    assert ts.resized(16).aligned.shape == (len(ts), 16, 16, 3)
+
+
+def test_triplets_without_aligned_references_still_load(triplet_file, tmp_path):
+    """A version-1 file (no aligned arrays) loads for the paper's conditions; warp batches say what is missing."""
+    import torch
+
+    from trioman.runtime.formats.common import load_npz
+    from trioman.toolkit.model_training import refiner_batch
+    from trioman.toolkit.refiner import refiner_inputs
+
+    a = load_npz(triplet_file[0])
+    old = tmp_path / "v1.npz"
+    np.savez(old, **{k: v for k, v in a.items() if k not in ("aligned", "valid", "aligned_from")})
+    ts = TripletSet.load([old])
+    assert ts.aligned is None
+    batch = refiner_batch(ts.sample(np.random.default_rng(0), 2))
+    assert len(refiner_inputs(batch, "tex+geo")) == 3 and isinstance(batch.coarse, torch.Tensor)
+    with pytest.raises(ValueError, match="aligned: required with conditions='warp'"):
+        refiner_inputs(batch, "warp")

@@ -2,6 +2,7 @@
 
     z_c = E_t(I_c^T), z_t = E_t(I^{T+k}), z_g = E_g(I_g^T)           latents [B, c, h, w]
     stack the V views (conditions "none": z_c; "tex": z_c, z_t; "tex+geo": z_c, z_t, z_g) -> [B * V, c, h, w]
+    (conditions "warp" / "warp+geo": the views are (aligned, coarse[, normal]), ``view_images``)
     U-Net once (self-attention over [B, V * h * w, C] tokens, convs and GroupNorm per view)
     I_c', I_t' = D_t(z_c', z_t'), I_g' = D_g(z_g')                  with skips E_t -> D_t, E_g -> D_g
     output [B, V, 3, H, W] in (0, 1), views in the order coarse, texture, geometry
@@ -18,7 +19,7 @@ import torch
 from torch import nn
 
 from trioman.toolkit.refiner.autoencoder import Decoder, Encoder
-from trioman.toolkit.refiner.config import RefinerConfig
+from trioman.toolkit.refiner.config import ALIGNED_CONDITIONS, VIEW_COUNT, RefinerConfig
 from trioman.toolkit.refiner.unet import ViewUNet
 
 INPUT_NAMES = ("coarse", "reference", "normal")  # the forward arguments, in view order
@@ -43,6 +44,21 @@ def check_refiner_inputs(input_names: tuple[str, ...], conditions: str, downsamp
             raise ValueError(f"{name}: H and W must be positive multiples of {downsample} ({what}), got {tuple(x.shape[2:])}")
         if x.shape != coarse.shape:
             raise ValueError(f"{name}: shape {tuple(x.shape)} differs from coarse {tuple(coarse.shape)}")
+
+
+def view_images(conditions: str, coarse: torch.Tensor, reference: torch.Tensor | None,
+                normal: torch.Tensor | None) -> list[torch.Tensor]:
+    """The V images the views encode, in view order; view 0's output is the refined frame.
+
+    "none" / "tex" / "tex+geo": (coarse[, reference[, normal]]), the paper's. "warp" / "warp+geo": ``reference``
+    is the geometry-aligned reference filled with the coarse render where no real pixel was carried, and the
+    views are (reference, coarse[, normal]): the Refiner refines the aligned image, and the coarse view
+    tells it where the two agree (nothing carried there) and where the carried pixels disagree with the render.
+    """
+    images = [coarse, reference, normal]
+    if conditions in ALIGNED_CONDITIONS:
+        images[:2] = [reference, coarse]
+    return images[: VIEW_COUNT[conditions]]
 
 
 class Refiner(nn.Module):
@@ -88,7 +104,7 @@ class Refiner(nn.Module):
             self.check_inputs(coarse, reference, normal)
         H, W = coarse.shape[2], coarse.shape[3]
         v, vt = self.views, self.tex_views
-        images = [coarse, reference, normal][:v]
+        images = view_images(self.config.conditions, coarse, reference, normal)
         tex = torch.cat(images[:vt])  # [(vt B), 3, H, W], view-major
         z_tex, skips_tex = self.tex_encoder(tex)
         c, h, w = z_tex.shape[1], z_tex.shape[2], z_tex.shape[3]

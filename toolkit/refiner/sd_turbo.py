@@ -30,7 +30,7 @@ import torch
 from torch import nn
 
 from trioman.toolkit.refiner.config import RefinerConfig
-from trioman.toolkit.refiner.model import INPUT_NAMES, check_refiner_inputs
+from trioman.toolkit.refiner.model import INPUT_NAMES, check_refiner_inputs, view_images
 
 PROMPT = "remove degradation"  # Difix's fixed prompt
 PROMPT_FILE = "prompt_embeds.safetensors"
@@ -215,7 +215,7 @@ class SdTurboRefiner(nn.Module):
             self.check_inputs(coarse, reference, normal)
         H, W = coarse.shape[2], coarse.shape[3]
         v = self.views
-        x = torch.stack([coarse, reference, normal][:v], dim=1).flatten(0, 1) * 2.0 - 1.0  # (B V) order
+        x = torch.stack(view_images(self.config.conditions, coarse, reference, normal), dim=1).flatten(0, 1) * 2.0 - 1.0  # (B V)
         z, skips = self.encode(x)
         prompt = self.prompt_embeds.expand(z.shape[0], -1, -1).to(z.dtype)
         out = self.unet(z, TIMESTEP, encoder_hidden_states=prompt, return_dict=False)[0]

@@ -24,7 +24,7 @@ import torch
 from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.formats import Subject
 from trioman.runtime.generator import GeneratorConfig, sample
-from trioman.runtime.pseudo_gt import KINDS, MASKS, STAGES, PseudoConfig, Source, make_pseudo_frames
+from trioman.runtime.pseudo_gt import KINDS, MASKS, STAGES, PseudoConfig, Source, make_pseudo_frames, needs_aligner
 from trioman.toolkit.avatar.model import GaussianAvatar
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.data import FrameSet
@@ -138,7 +138,7 @@ class Augmenter:
         self.rng = np.random.default_rng([int(seed), 0xA06])  # apart from the real-frame draws
         self.background = subject.background.astype(np.float32)
         self.aligner = None
-        if self.pseudo_cfg.needs_aligner:
+        if needs_aligner(self.pseudo_cfg, None if self.refiner is None else self.refiner.conditions):
             views = SourceViews(lambda p: frames.image(p).numpy(), lambda p: frames.mask(p).numpy(), frames.poses.numpy(),
                                 frames.trans.numpy(), frames.viewmat.numpy(), frames.K.numpy(), frames.width, frames.height)
             self.aligner = Aligner(subject.body, views, AlignConfig(sources=cfg.align_sources))

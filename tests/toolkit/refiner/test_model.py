@@ -83,7 +83,18 @@ def test_views_interact_through_attention(conditions):
         assert ref_effect == 0 and normal_effect == 0
     else:
         assert ref_effect > 1e-4
-        assert (normal_effect > 1e-4) == (conditions == "tex+geo")
+        assert (normal_effect > 1e-4) == conditions.endswith("+geo")
+
+
+@pytest.mark.parametrize("conditions", ["warp", "warp+geo"])
+def test_warp_refines_the_aligned_reference(conditions):
+    """With "warp*" view 0 is the aligned reference (the ``reference`` input): a fresh Refiner returns it
+    there and the coarse render as view 1 (the identity, up to the logit clamp)."""
+    model = create_refiner(tiny_config(conditions=conditions)).eval()
+    coarse, aligned, normal = _inputs(2)
+    with torch.no_grad():
+        out = model(coarse, aligned, normal)
+    assert torch.allclose(out[:, 0], aligned, atol=1.001e-3) and torch.allclose(out[:, 1], coarse, atol=1.001e-3)
 
 
 def test_batch_items_do_not_interact():

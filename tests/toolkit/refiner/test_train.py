@@ -54,6 +54,13 @@ def test_batch_to_inputs_and_targets():
     assert torch.equal(t[:, 0], b.target) and torch.equal(t[:, 1], b.reference_target) and torch.equal(t[:, 2], b.normal)
     with pytest.raises(ValueError, match="conditions"):
         refiner_targets(b, "all")
+    aligned = b._replace(aligned=torch.rand_like(b.coarse))
+    check_batch(aligned)
+    assert refiner_inputs(aligned, "warp+geo") == (b.coarse, aligned.aligned, b.normal)
+    t = refiner_targets(aligned, "warp+geo")  # views (aligned, coarse, normal): both image views learn I^T
+    assert torch.equal(t[:, 0], b.target) and torch.equal(t[:, 1], b.target) and torch.equal(t[:, 2], b.normal)
+    with pytest.raises(ValueError, match="aligned: shape"):
+        check_batch(aligned._replace(aligned=b.coarse[..., :16]))
     with pytest.raises(ValueError, match="normal: shape"):
         check_batch(b._replace(normal=b.normal[..., :16]))
     with pytest.raises(ValueError, match="target: contains NaN"):
