@@ -89,7 +89,7 @@ def train_step(
     it in its message) and returns None."""
     check_batch(batch)
     device = next(model.parameters()).device
-    batch = RefinerBatch(*(x.to(device) for x in batch))
+    batch = RefinerBatch(*(None if x is None else x.to(device) for x in batch))
     conditions = model.config.conditions
     optimizer.zero_grad(set_to_none=True)
     hint = f"Lower the learning rate (lr={optimizer.param_groups[0]['lr']:g}) or check the data."
