@@ -121,14 +121,18 @@ def test_non_finite_gradients_are_skipped_and_repeated_ones_stop(tmp_path):
     data = [synthetic_batch(4, TINY.img_size, g) for _ in range(2)]
     model = create_examiner(TINY)
     calls, bad = [0], {1, 2}  # NaN gradients on these backward calls (0-based); None: on every call
+    seen = []  # the weights at each backward call, before its step's update
 
     def poison(grad):
         calls[0] += 1
+        seen.append([p.detach().clone() for p in model.parameters()])
         return grad * float("nan") if bad is None or calls[0] - 1 in bad else grad
 
     next(model.parameters()).register_hook(poison)
     result = train_examiner(model, data, ExaminerTrainConfig(steps=5, lr=1e-3, checkpoint_every=5), run=tmp_path)
     assert result.skipped == 2 and len(result.losses) == 3 and result.step == 5
+    same = [all(torch.equal(a, b) for a, b in zip(seen[i], seen[i + 1])) for i in range(4)]
+    assert same == [False, True, True, False]  # the skipped steps 1 and 2 left the weights as they were
     assert torch.load(result.checkpoint, weights_only=True)["skipped"] == 2
     bad = None
     with pytest.raises(FloatingPointError, match="examiner: 2 consecutive steps"):

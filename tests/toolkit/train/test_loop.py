@@ -305,10 +305,10 @@ def test_non_finite_steps_are_skipped_counted_and_stop_the_run(subject, tmp_path
 
     real = loop.regularisers
     bad_steps = {2, 3}  # calls (0-based) whose loss is NaN
-    calls = []
+    calls = []  # the weights at each call, before its step's update
 
     def flaky(model, out, cfg):
-        calls.append(1)
+        calls.append([p.detach().clone() for p in model.parameters()])
         return real(model, out, cfg) + (float("nan") if len(calls) - 1 in bad_steps else 0.0)
 
     monkeypatch.setattr(loop, "regularisers", flaky)
@@ -319,6 +319,8 @@ def test_non_finite_steps_are_skipped_counted_and_stop_the_run(subject, tmp_path
     assert [s["skipped"] for s in states] == [1, 2]  # counted (steps 3 and 4), and the run went on
     assert all(torch.isfinite(v).all() for v in states[-1]["model"].values())
     assert np.isnan(losses(run)[2:4]).all() and np.isfinite(losses(run)[[0, 1, 4, 5]]).all()
+    same = [all(torch.equal(a, b) for a, b in zip(calls[i], calls[i + 1])) for i in range(5)]
+    assert same == [False, False, True, True, False]  # the skipped steps 2 and 3 left the weights as they were
 
     calls.clear()
     bad_steps.update(range(100))
