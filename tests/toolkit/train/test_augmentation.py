@@ -1,6 +1,7 @@
 """Online augmentation in the avatar's training: every mode trains, resume is exact, bad models give one line."""
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -88,7 +89,8 @@ def two_threads():
     torch.set_num_threads(threads)
 
 
-def test_resume_of_an_augmented_run_matches_an_uninterrupted_run(subject, models, tmp_path, two_threads):
+def test_resume_of_an_augmented_run_matches_an_uninterrupted_run_and_differs_from_the_plain_one(subject, models, tmp_path,
+                                                                                                two_threads):
     cfg = TrainConfig(iterations=12, checkpoint_every=4, avatar=TINY_AVATAR,
                       augment=AugmentConfig(mode="examined", refiner=str(models["refiner"]), examiner=str(models["examiner"]),
                                             start=0.25, refresh=5, pool=2, share=0.6))
@@ -101,6 +103,9 @@ def test_resume_of_an_augmented_run_matches_an_uninterrupted_run(subject, models
     np.testing.assert_array_equal(losses(straight), losses(broken))
     sa, sb = (json.loads((r / AUGMENT_JSON).read_text()) for r in (straight, broken))
     assert {k: sa[k] for k in ("rebuilds", "pseudo_steps", "kept")} == {k: sb[k] for k in ("rebuilds", "pseudo_steps", "kept")}
+    plain = train(subject, tmp_path / "plain", dataclasses.replace(cfg, augment=None), progress=False)  # the same seed
+    p = load_checkpoint(list_checkpoints(plain)[-1])
+    assert sa["pseudo_steps"] > 0 and any(not torch.equal(a["model"][k], p["model"][k]) for k in a["model"])
 
 
 def test_examiner_threshold_drops_candidates_and_training_goes_on(subject, models, tmp_path):
