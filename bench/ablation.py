@@ -1,6 +1,6 @@
 """``trioman bench ablation``: the paper's Tables 1 and 2 on held-out synthetic subjects.
 
-The Refiner (one per condition none / tex / tex+geo) and the Examiner are trained on the corpus's
+The Refiner (one per condition none / tex / tex+geo / warp / warp+geo) and the Examiner are trained on the corpus's
 training subjects (``trioman synth-corpus``); the avatars are trained on the held-out subjects, which
 those models never saw, and evaluated on their test split (novel poses from novel views).
 
@@ -10,8 +10,9 @@ Variants, per held-out subject (``VARIANTS``), all from the quick preset:
     baseline_long   equal-compute control: real frames only, as many steps as an augmented run
     G               + Generator: online pseudo-GT = the avatar's own coarse renders (--augment coarse)
     aligned         the render with real pixels carried through the body mesh, no learned model (--augment aligned)
-    GR_none/tex/tex+geo   + Refiner under each condition (--augment refined)
-    GRE             + Refiner (tex+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
+    GR_none/tex/tex+geo   + Refiner under each of the paper's conditions (--augment refined)
+    GR_warp+geo     + Refiner refining the aligned reference, with the normal map (conditions warp+geo)
+    GRE             + Refiner (warp+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
     ceiling         the truth at every draw: the subject's own renderer (--augment truth), what a perfect Refiner gives
 
 Every augmented row is also reported as the share of the ceiling's gain over the control it recovers.
@@ -25,8 +26,9 @@ An augmented run takes ``iterations / (start + (1 - start) (1 - share))`` steps,
 as many real frames as the baseline plus its pseudo-GT steps; ``baseline_long`` has that length.
 A finished run (and its evaluation) is reused, so an interrupted benchmark resumes where it stopped.
 
-Also measured: whether the tex+geo Refiner uses its conditions (held-out test triplets refined with
-the true reference and normal map, with another subject's reference, and with a zero normal map).
+Also measured: whether the tex+geo and warp+geo Refiners use their conditions (held-out test triplets refined
+with the true reference and normal map; with another subject's reference frame (tex+geo) or nothing carried,
+the coarse render as the aligned reference (warp+geo); with a zero normal map).
 Writes ablation.md / ablation.json, a bar chart per subject, one grid of the same test frames across
 variants per subject, and the same Generator draws as pseudo-GT through each mode and Refiner.
 """
@@ -52,7 +54,8 @@ VARIANTS = (
     ("GR_none", "refined", "none", False),
     ("GR_tex", "refined", "tex", False),
     ("GR_tex+geo", "refined", "tex+geo", False),
-    ("GRE", "examined", "tex+geo", True),
+    ("GR_warp+geo", "refined", "warp+geo", False),
+    ("GRE", "examined", "warp+geo", True),
     ("ceiling", "truth", None, False),
 )
 # Levers: variants beyond the paper's, trained when their option is given; same tuple layout.
@@ -61,7 +64,8 @@ ALL_VARIANTS = VARIANTS + LEVERS
 LABELS = {
     "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
     "GR_none": "+ Refinement (without condition)", "GR_tex": "+ Refinement (only tex. condition)",
-    "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GRE": "+ Generator & Refiner & Examiner",
+    "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GR_warp+geo": "+ Generator & Refiner (aligned ref.&geo.)",
+    "GRE": "+ Generator & Refiner (aligned ref.&geo.) & Examiner",
     "GRd_tex+geo": "+ Generator & Refiner (tex.&geo.), detail only (lever)",
     "aligned": "+ Generator, aligned real pixels (no Refiner)", "ceiling": "Ceiling: the truth at every draw",
 }
@@ -176,12 +180,13 @@ def _trained_models(out: Path) -> tuple[dict[str, Path], dict]:
 
 
 @torch.no_grad()
-def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
-    """Masked PSNR of tex+geo refinement on held-out test triplets with the true conditions, another
-    subject's reference frame, and a zero normal map (a Refiner that uses a condition loses PSNR)."""
+def condition_check(refiner_run: Path, heldout: list[Path], conditions: str = "tex+geo") -> dict[str, float]:
+    """Masked PSNR of refinement (``conditions`` tex+geo or warp+geo) on held-out test triplets with the true
+    conditions; without the reference (tex+geo: another subject's frame; warp+geo: nothing carried, the coarse
+    render as the aligned reference); with a zero normal map (a Refiner that uses a condition loses PSNR)."""
     from trioman.bench.common import batched, mean_metrics
     from trioman.toolkit.model_training import nchw, refiner_batch
-    from trioman.toolkit.refiner import load_refiner, refiner_inputs
+    from trioman.toolkit.refiner import load_refiner
     from trioman.toolkit.train.checkpoint import latest_checkpoint
     from trioman.toolkit.triplets import TripletSet
 
@@ -189,15 +194,19 @@ def condition_check(refiner_run: Path, heldout: list[Path]) -> dict[str, float]:
     test = TripletSet.load(heldout).evaluation("test")
     tb = refiner_batch(test)
     mask = nchw(test.mask[..., None])
-    other = torch.roll(tb.reference, shifts=len(tb.reference) // len(heldout), dims=0)  # another subject's frame
+    warp = conditions == "warp+geo"
+    true_ref = tb.aligned if warp else tb.reference
+    other = tb.coarse if warp else torch.roll(tb.reference, shifts=len(tb.reference) // len(heldout), dims=0)
 
     def psnr(reference: torch.Tensor, normal: torch.Tensor) -> float:
-        out = batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), "tex+geo"))[:, 0],
-                       tb.coarse, reference, normal)
+        out = batched(lambda c, r, n: model(c, r, n)[:, 0], tb.coarse, reference, normal)
         return mean_metrics(out, tb.target, mask)["psnr"]
 
-    return {"coarse": mean_metrics(tb.coarse, tb.target, mask)["psnr"], "true": psnr(tb.reference, tb.normal),
-            "other_subject_reference": psnr(other, tb.normal), "zero_normal": psnr(tb.reference, torch.zeros_like(tb.normal))}
+    found = {"coarse": mean_metrics(tb.coarse, tb.target, mask)["psnr"], "true": psnr(true_ref, tb.normal),
+             "without_reference": psnr(other, tb.normal), "zero_normal": psnr(true_ref, torch.zeros_like(tb.normal))}
+    if warp:
+        found["aligned"] = mean_metrics(tb.aligned, tb.target, mask)["psnr"]
+    return found
 
 
 def bench_ablation(args: argparse.Namespace) -> dict:
@@ -252,7 +261,8 @@ def bench_ablation(args: argparse.Namespace) -> dict:
             _grid(subject, out, name, done)
         if "baseline" in done:  # pseudo-GT is made from the baseline avatar
             truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan, out, name)
-    check = condition_check(models["refiner_tex+geo"], [triplet_paths(corpus, args.baseline_frames)["heldout"][heldout.index(n)] for n in names])
+    trips = [triplet_paths(corpus, args.baseline_frames)["heldout"][heldout.index(n)] for n in names]
+    check = {c: condition_check(models[f"refiner_{c}"], trips, c) for c in ("tex+geo", "warp+geo")}
     report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
@@ -313,6 +323,8 @@ def summarise(results: dict[str, dict]) -> dict:
         verdict["gain_exceeds_twice_seed_spread"] = gain > 2 * max(spread.values())
     if {"baseline", "G", "GR_tex+geo", "GRE"} <= set(p):
         verdict["table1_order_holds"] = p["baseline"] < p["G"] < p["GR_tex+geo"] < p["GRE"]
+    if {"baseline", "GR_warp+geo", "GRE", "ceiling"} <= set(p):
+        verdict["warp_order_holds"] = p["baseline"] < p["GR_warp+geo"] < p["GRE"] < p["ceiling"]
     if {"GR_none", "GR_tex", "GR_tex+geo"} <= set(p):
         verdict["table2_order_holds"] = p["GR_none"] < p["GR_tex"] < p["GR_tex+geo"]
     share = share_of_ceiling(mean)
@@ -408,10 +420,10 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     base = load_run(runs / "baseline_s0")[0]
     kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None)]
     kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
-              for c in ("none", "tex", "tex+geo") if f"refiner_{c}" in models]
+              for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if f"refiner_{c}" in models]
     if plan.detail_sigma and "refiner_tex+geo" in models:
-        kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)",
-                      PseudoConfig("refined", detail_sigma=plan.detail_sigma), kinds[-1][2]))
+        kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)", PseudoConfig("refined", detail_sigma=plan.detail_sigma),
+                      next(r for label, _, r in kinds if label == "refined (tex+geo)")))
     frames, coverage, ms, columns = {}, {}, {}, {}
     for label, cfg, refiner in kinds:
         seconds: dict[str, float] = {}
@@ -495,7 +507,7 @@ def _tables(per_variant: dict[str, dict]) -> list[str]:
     share = share_of_ceiling(per_variant)
     lines = ["Table 1 (share of the ceiling's gain: over the equal-steps control)", ""] + head
     base = per_variant["baseline"]["psnr"] if "baseline" in per_variant else None
-    for v in ("baseline", "baseline_long", "G", "aligned", "GR_tex+geo", "GRE", "GRd_tex+geo", "ceiling"):
+    for v in ("baseline", "baseline_long", "G", "aligned", "GR_tex+geo", "GR_warp+geo", "GRE", "GRd_tex+geo", "ceiling"):
         if v in per_variant:
             paper = PAPER_TABLE1[v] - PAPER_TABLE1["baseline"] if v in PAPER_TABLE1 else None
             lines.append(_row(LABELS[v], per_variant[v], base, paper, share.get(v)))
@@ -537,7 +549,9 @@ def ablation_markdown(r: dict) -> str:
                   f"{'met' if v['full_gain_at_least_1db'] else 'missed'}); seed spread (max - min, mean over subjects): "
                   + ", ".join(f"{k} {x:.2f} dB" for k, x in s["seed_spread_psnr"].items())
                   + f"; gain > 2 x spread: {'yes' if v['gain_exceeds_twice_seed_spread'] else 'no'}."]
-    for key, text in (("table1_order_holds", "baseline < + G < + G&R < + G&R&E"), ("table2_order_holds", "none < tex < tex+geo")):
+    for key, text in (("table1_order_holds", "baseline < + G < + G&R (tex+geo) < + G&R&E"),
+                      ("warp_order_holds", "baseline < + G&R (warp+geo) < + G&R&E < ceiling"),
+                      ("table2_order_holds", "none < tex < tex+geo")):
         if key in v:
             lines.append(f"Ordering {text}: {'holds' if v[key] else 'does not hold'}.")
     if "ceiling_gain_db" in v:
@@ -582,14 +596,26 @@ def ablation_markdown(r: dict) -> str:
         lines += [f"| {LABELS[v]} | {a['psnr']:.2f} | {', '.join(f'{b:+.4f}' for b in a['colour_bias'])} |"
                   for v, a in t["avatars"].items()]
         lines += [""]
-    c = r["condition_check"]
-    lines += ["## Does the tex+geo Refiner use its conditions?", "",
-              "Masked PSNR of held-out test triplets (coarse render at the test pose, nearest-view training frame as reference):", "",
-              "| input | PSNR |", "|---|---|", f"| coarse (no refinement) | {c['coarse']:.2f} |",
-              f"| refined, true reference and normal map | {c['true']:.2f} |",
-              f"| refined, another subject's reference | {c['other_subject_reference']:.2f} ({c['other_subject_reference'] - c['true']:+.2f}) |",
-              f"| refined, zero normal map | {c['zero_normal']:.2f} ({c['zero_normal'] - c['true']:+.2f}) |", "",
-              "| model | steps | training time |", "|---|---|---|"]
+    lines += ["## Do the Refiners use their conditions?", "",
+              "Masked PSNR of held-out test triplets (coarse render at the test pose; tex+geo: the nearest-view training "
+              "frame as reference; warp+geo: real pixels of other training frames carried to the test pose, "
+              "toolkit/triplets.py):", "", "| input | tex+geo | warp+geo |", "|---|---|---|"]
+    checks = r["condition_check"]
+    checks = {"tex+geo": checks} if "true" in checks else checks  # reports written before warp+geo hold one check
+
+    def cell(c: str, key: str) -> str:
+        x = checks.get(c, {}).get(key)
+        return "" if x is None else f"{x:.2f}" + ("" if key in ("coarse", "true", "aligned") else f" ({x - checks[c]['true']:+.2f})")
+
+    for key, text in (("coarse", "coarse (no refinement)"), ("aligned", "aligned reference alone (no Refiner)"),
+                      ("true", "refined, true reference and normal map"),
+                      ("without_reference", "refined without the reference (tex+geo: another subject's frame; "
+                                            "warp+geo: nothing carried)"),
+                      ("other_subject_reference", "refined, another subject's reference"),
+                      ("zero_normal", "refined, zero normal map")):
+        if any(key in c for c in checks.values()):
+            lines.append(f"| {text} | {cell('tex+geo', key)} | {cell('warp+geo', key)} |")
+    lines += ["", "| model | steps | training time |", "|---|---|---|"]
     lines += [f"| {k} | {m['steps']} | {m['seconds'] / 60:.1f} min |" for k, m in r["models"].items()]
     lines += ["", f"Whole benchmark: {r['wall_seconds'] / 60:.1f} min wall time (finished runs reused); "
               f"peak resident memory {r.get('peak_rss_mib', 0):.0f} MiB.", ""]

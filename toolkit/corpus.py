@@ -87,7 +87,7 @@ def _build_subject(root: Path, cfg: CorpusConfig, i: int, progress: bool) -> Non
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
-    from trioman.toolkit.triplets import build_triplets
+    from trioman.toolkit.triplets import TRIPLETS_VERSION, build_triplets, triplets_version
 
     name, role = cfg.names[i]
     subject, run, trip = _paths(root, cfg, name, role)
@@ -99,7 +99,7 @@ def _build_subject(root: Path, cfg: CorpusConfig, i: int, progress: bool) -> Non
             frames["frame_stride"] = cfg.subset_stride
         train_cfg = preset("quick", iterations=cfg.iterations, checkpoint_every=cfg.iterations, **frames)
         train(subject, run, train_cfg, resume=(run / "config.json").exists(), progress=progress)
-    if not trip.is_file():
+    if not trip.is_file() or triplets_version(trip) < TRIPLETS_VERSION:  # older files lack the aligned references
         build_triplets(run, trip, progress=progress)
     if progress:
         print(f"synth-corpus: {name} ({role}) done: {trip}")

@@ -59,6 +59,15 @@ def _u8(img: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
 
 
+def triplets_version(path: str | Path) -> int:
+    """The format version in a triplet file's meta (reads nothing else); FormatError for a file that is not one."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return int(json.loads(str(z["meta"]))["version"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise FormatError(f"{path}: meta: not a readable triplet file ({e})") from None
+
+
 def _own_source(split: np.ndarray, sequence: np.ndarray, i: int, rng: np.random.Generator) -> int | None:
     """A training frame of frame i's sequence at 0 < |k| <= ALIGN_K (drawn), None when there is none."""
     lo, hi = max(0, i - ALIGN_K), min(len(split), i + ALIGN_K + 1)

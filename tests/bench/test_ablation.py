@@ -35,18 +35,23 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert r["plan"]["detail_sigma"] == 2.0
     truth = r["pseudo_gt_truth"]["s02"]
     assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "refined (none)", "refined (tex)", "refined (tex+geo)",
-                                    "detail only (tex+geo, 2 px)"}
+                                    "refined (warp)", "refined (warp+geo)", "detail only (tex+geo, 2 px)"}
     assert all(np.isfinite(v) for v in truth["frames"].values()) and 0 < truth["coverage"]["aligned (no Refiner)"] <= 1
     assert set(truth["avatars"]) == {v for v, *_ in VARIANTS + LEVERS} and all(
         np.isfinite(a["psnr"]) and len(a["colour_bias"]) == 3 for a in truth["avatars"].values())
     cfg = json.loads((out / "runs" / "s02" / "GRd_tex_geo_s0" / "config.json").read_text())
     assert cfg["train"]["augment"]["detail_sigma"] == 2.0
-    for variant, mode in (("G", "coarse"), ("aligned", "aligned"), ("GR_tex", "refined"), ("GRE", "examined"),
+    for variant, mode in (("G", "coarse"), ("aligned", "aligned"), ("GR_tex", "refined"), ("GR_warp+geo", "refined"),
+                          ("GRE", "examined"),
                           ("GRd_tex+geo", "refined"), ("ceiling", "truth")):
         a = res[variant]["0"]["augment"]
         assert a["mode"] == mode and a["kept"] > 0, variant
     assert all(np.isfinite(x["psnr"]) for runs in res.values() for x in runs.values())
-    assert set(r["condition_check"]) == {"coarse", "true", "other_subject_reference", "zero_normal"}
+    assert set(r["condition_check"]["tex+geo"]) == {"coarse", "true", "without_reference", "zero_normal"}
+    assert set(r["condition_check"]["warp+geo"]) == {"coarse", "aligned", "true", "without_reference", "zero_normal"}
+    assert all(np.isfinite(x) for c in r["condition_check"].values() for x in c.values())
+    assert json.loads((out / "runs" / "s02" / "GRE_s0" / "config.json").read_text())["train"]["augment"]["refiner"].endswith(
+        "refiner_warp_geo")
     md = (out / "ablation.md").read_text()
     # the report's numbers are the summary's
     mean = r["summary"]["mean"]
@@ -55,7 +60,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert all(np.isfinite(mean[v]["psnr"]) for v in mean)
     for text in ("Table 1", "Table 2", "+ Generator & Refiner & Examiner", "equal steps (control)", "paper 00028",
                  "Ceiling (the truth at every draw) over the equal-steps control", "share of the ceiling's gain",
-                 "Does the tex+geo Refiner use its conditions", "ms per step",
+                 "Do the Refiners use their conditions", "| refined, true reference and normal map |", "ms per step",
                  "detail only (lever)", "Pseudo-GT against the truth: s02"):
         assert text in md, text
     for name in ("ablation_s02.png", "grid_s02.png", "pseudo_gt_s02.png"):
@@ -117,6 +122,10 @@ def test_summary_verdicts_follow_the_numbers():
     v = s["verdict"]
     assert v["ceiling_gain_db"] == pytest.approx(2.0) and v["ceiling_gain_at_least_1db"] and not v["full_recovers_85_percent"]
     assert v["unmasked_at_least_baseline"]["G"] and v["unmasked_at_least_baseline"]["ceiling"]
+    res["a"]["GR_warp+geo"] = runs(21.2)
+    assert summarise(res)["verdict"]["warp_order_holds"]
+    res["a"]["GR_warp+geo"] = runs(21.5)  # above the full system
+    assert not summarise(res)["verdict"]["warp_order_holds"]
     res["a"]["G"] = {"0": {**runs(20.5)["0"], "psnr_unmasked": 19.0}}
     assert not summarise(res)["verdict"]["unmasked_at_least_baseline"]["G"]
 

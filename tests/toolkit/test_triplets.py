@@ -13,7 +13,7 @@ from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noq
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
 from trioman.toolkit.train.data import load_frames  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
-from trioman.toolkit.triplets import TripletSet, build_triplets, view_yaw  # noqa: E402
+from trioman.toolkit.triplets import TRIPLETS_VERSION, TripletSet, build_triplets, triplets_version, view_yaw  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +118,10 @@ def test_triplets_without_aligned_references_still_load(triplet_file, tmp_path):
     old = tmp_path / "v1.npz"
     np.savez(old, **{k: v for k, v in a.items() if k not in ("aligned", "valid", "aligned_from")})
     ts = TripletSet.load([old])
-    assert ts.aligned is None
+    assert ts.aligned is None and triplets_version(triplet_file[0]) == TRIPLETS_VERSION == 2
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(FormatError, match="junk.npz: meta: not a readable triplet file"):
+        triplets_version(tmp_path / "junk.npz")
     batch = refiner_batch(ts.sample(np.random.default_rng(0), 2))
     assert len(refiner_inputs(batch, "tex+geo")) == 3 and isinstance(batch.coarse, torch.Tensor)
     with pytest.raises(ValueError, match="aligned: required with conditions='warp'"):
