@@ -21,6 +21,7 @@ pytest.importorskip("onnxruntime")
 
 from trioman.cli import main  # noqa: E402
 from trioman.export import onnx_models as om  # noqa: E402
+from trioman.export.onnx_models import jobs  # noqa: E402
 from trioman.runtime.models import ExaminerModel, RefinerModel, load_model, read_metadata  # noqa: E402
 from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create_examiner, load_examiner, train_examiner  # noqa: E402
 from trioman.toolkit.model_training import examiner_batch, refiner_batch  # noqa: E402
@@ -287,8 +288,8 @@ def test_summary_lines_name_every_file_and_the_report(exported):
 
 
 def test_parity_failure_raises_and_leaves_nothing(corpus, tmp_path, monkeypatch):
-    real = om._Job.torch_run
-    monkeypatch.setattr(om._Job, "torch_run", lambda self, feed: real(self, feed) + 1e-3)  # beyond 1e-4
+    real = jobs.Job.torch_run
+    monkeypatch.setattr(jobs.Job, "torch_run", lambda self, feed: real(self, feed) + 1e-3)  # beyond 1e-4
     out = tmp_path / "models"
     with pytest.raises(om.ExportParityError, match=r"examiner fp32: .*max \|diff\| 0\.001.* tolerance 0\.0001"):
         om.export_onnx(examiner=corpus["examiner_run"], out=out, variants="fp32", calibration=corpus["triplets"])
@@ -299,7 +300,7 @@ def test_parity_failure_raises_and_leaves_nothing(corpus, tmp_path, monkeypatch)
 
 
 def test_a_variant_failing_its_gate_is_rejected_not_written(corpus, tmp_path, monkeypatch):
-    monkeypatch.setattr(om, "INT8_MIN_AGREEMENT", 1.01)  # unreachable
+    monkeypatch.setattr(jobs, "INT8_MIN_AGREEMENT", 1.01)  # the gate's, unreachable
     report = om.export_onnx(examiner=corpus["examiner_run"], out=tmp_path / "models", variants="fp32,int8",
                             gate_frames=8, calibration_frames=4)
     assert sorted(p.name for p in (tmp_path / "models").iterdir()) == ["examiner.onnx", "export.json"]
@@ -342,7 +343,7 @@ def test_calibration_session_plans_no_memory_pattern_inside_the_context_only(exp
 
     original = CalibraterBase.create_inference_session
     fp32 = exported[1] / "refiner.onnx"
-    with om._calibration_without_memory_pattern():
+    with jobs._calibration_without_memory_pattern():
         inside = create_calibrator(fp32, ["Conv"], augmented_model_path=tmp_path / "a.onnx")
     outside = create_calibrator(fp32, ["Conv"], augmented_model_path=tmp_path / "b.onnx")
     assert inside.infer_session.get_session_options().enable_mem_pattern is False
