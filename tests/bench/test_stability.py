@@ -26,6 +26,8 @@ def test_bench_stability_reports_every_case(tmp_path, capsys):
     groups = {r["group"] for r in rows}
     assert {"renderer vs float64 oracle", "rasterizer gradients", "Refiner and Examiner, float32 vs float64", ONNX,
             "axis-angle -> matrix vs expm", TRAINING} <= groups
+    fk = [r for r in rows if r["group"].startswith("FK + LBS")]
+    assert {r["method"] for r in fk} == {"numpy float64", "torch float32", "torch float64"}
     assert report["all_finite"] and all(r["finite"] for r in rows)
     for r in rows:
         if r["group"] in ("renderer vs float64 oracle", "rasterizer gradients", "Refiner and Examiner, float32 vs float64"):

@@ -3,8 +3,8 @@ appear where the client's camera puts the avatar, before and after a pose change
 
 Without the viewer's splats the page is the baseline; a pixel is the avatar's when it differs from the
 baseline. The test waits until the avatar's pixels settle, then checks that they lie inside the box the
-posed Gaussian centres project to through the client's own camera (a margin for the splats' extent)
-and cover a good part of it. The screenshot goes to $TRIOMAN_VIEWER_SCREENSHOT (the README's
+posed Gaussian centres project to through the client's own camera (a margin for the splats' extent),
+cover a good part of it and, for the test's avatar, stand upright (red at the bottom, blue at the top). The screenshot goes to $TRIOMAN_VIEWER_SCREENSHOT (the README's
 docs/images/viewer.png is made so, with $TRIOMAN_VIEWER_AVATAR naming a trained avatar) or the
 test's temporary folder.
 Needs chromium and chromium-driver (Debian packages; .ci/run installs them) and selenium (the dev extra).
@@ -123,8 +123,17 @@ def check_inside(mask: np.ndarray, box: np.ndarray) -> None:
     assert len(xs) > 0.15 * area, f"{len(xs)} avatar pixels in a box of {area:.0f} px^2"
 
 
+def check_upright(image: np.ndarray, mask: np.ndarray) -> None:
+    """The test avatar (helpers.make_avatar) is red at the bottom and blue at the top; upside down, they swap."""
+    ys, xs = np.nonzero(mask)
+    rgb, mid = image[ys, xs].astype(float), np.median(ys)
+    top, bottom = rgb[ys < mid].mean(0), rgb[ys > mid].mean(0)  # page rows grow downwards
+    assert top[2] > top[0] and bottom[0] > bottom[2], f"mean RGB of the upper half {top.round()}, lower half {bottom.round()}"
+
+
 def test_the_splats_show_where_the_camera_puts_them_before_and_after_a_pose_change(browser, tmp_path):
     avatar = os.environ.get("TRIOMAN_VIEWER_AVATAR")
+    ours = avatar is None
     if avatar is None:
         make_avatar(tmp_path / "avatar", n=1500)
         avatar = tmp_path / "avatar"
@@ -147,6 +156,8 @@ def test_the_splats_show_where_the_camera_puts_them_before_and_after_a_pose_chan
         viewer.splats.visible = True
         before = avatar_pixels(browser, baseline)
         check_inside(before, expected_box(viewer, canvas))
+        if ours:
+            check_upright(screenshot(browser), before)
 
         group = "arms" if "arms" in viewer.poser.bend_groups else viewer.poser.bend_groups[-1]
         viewer._bends[group].value = -70.0 if group == "arms" else 80.0  # as a user moves the slider
