@@ -1,10 +1,15 @@
-"""``trioman bench train``: avatar quality against training time, per preset, on one synthetic subject.
+"""``trioman bench train``: avatar quality against training time, per preset, on one synthetic subject,
+and where the time of one training step goes.
 
 Each preset trains from scratch; at every checkpoint the training and test splits are evaluated
 (test = novel poses and views), outside the training clock. The finished avatar is also rendered at
 ``HOLE_SIZE`` px, where gaps between Gaussians show as holes: the share of the (upsampled, eroded) body
 mask the render leaves below ``HOLE_ALPHA`` opacity is reported. Writes train.md, train.json,
 train_psnr_vs_time.png and render_<preset>_<size>.png.
+
+The step profile (:func:`profile_step`) times the stages of one quick-preset step (the avatar's triplane and
+MLPs, posing, projection, tile binning, rasterizer forward, loss, backward with the rasterizer's share on its
+own, optimizer) at the subject's size and at half of it, at 1 and 2 torch threads: step_profile.png.
 """
 
 from __future__ import annotations
@@ -20,6 +25,80 @@ from trioman.bench.common import machine, peak_rss_mib
 
 HOLE_SIZE = 512  # animate's default output side
 HOLE_ALPHA = 0.5
+STAGES = ("triplane + MLPs", "posing (LBS)", "projection", "tile binning", "rasterizer forward", "loss",
+          "rasterizer backward", "backward", "optimizer")  # the marks of one step (runtime.render.timing)
+
+
+def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], threads: tuple[int, ...],
+                 steps: int, warmup: int = 2) -> list[dict]:
+    """Seconds per stage of one training step (the loop's own step, on the subject's training frames resized
+    to each size), the mean of ``steps`` steps after ``warmup``. -> one row per (size, threads): size,
+    threads, gaussians, step_s (wall time of the whole step), stages {name: s}; "other" is the step's time
+    outside the marks (sampling a frame, the PSNR, the finite checks)."""
+    import torch
+
+    from trioman.runtime.formats import load_subject
+    from trioman.runtime.render.timing import record_stages
+    from trioman.toolkit.avatar.model import GaussianAvatar
+    from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
+    from trioman.toolkit.train.config import preset
+    from trioman.toolkit.train.data import load_frames
+    from trioman.toolkit.train.guard import StepGuard
+    from trioman.toolkit.train.loop import _step, param_groups
+
+    subject = load_subject(subject_dir)
+    cfg = preset(preset_name)
+    previous = torch.get_num_threads()
+    rows = []
+    try:
+        for size in sizes:
+            frames = load_frames(subject, "train", size / subject.width)
+            for n_threads in threads:
+                torch.set_num_threads(n_threads)
+                model = GaussianAvatar(subject.body, cfg.avatar)
+                optimizer = torch.optim.Adam(param_groups(model, cfg), lr=cfg.lr, eps=1e-15)
+                gen = torch.Generator().manual_seed(cfg.seed)
+                guard = StepGuard("bench", cfg.max_skipped)
+                with flush_denormals(), deterministic_kernels():
+                    for k in range(warmup):
+                        _step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, k)
+                    with record_stages() as record:
+                        t0 = time.perf_counter()
+                        for k in range(steps):
+                            _step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, warmup + k)
+                        wall = time.perf_counter() - t0
+                stages = {name: record.get(name, 0.0) / steps for name in STAGES}
+                stages["other"] = wall / steps - sum(stages.values())
+                rows.append({"size": frames.width, "threads": n_threads, "gaussians": model.num_gaussians,
+                             "step_s": wall / steps, "stages": stages})
+    finally:
+        torch.set_num_threads(previous)
+    return rows
+
+
+def plot_step_profile(rows: list[dict], path: Path) -> None:
+    """A stacked horizontal bar per (size, threads) row: seconds per stage of one step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 1.2 + 0.6 * len(rows)), dpi=120)
+    labels = [f"{r['size']} px, {r['threads']} thread{'s' if r['threads'] > 1 else ''}" for r in rows]
+    left = np.zeros(len(rows))
+    names = list(rows[0]["stages"])
+    colors = plt.get_cmap("tab10")(np.arange(len(names)) % 10)
+    for name, color in zip(names, colors):
+        ms = np.array([1000 * r["stages"][name] for r in rows])
+        ax.barh(labels, ms, left=left, color=color, label=name)
+        left += ms
+    ax.set_xlabel("milliseconds per step")
+    ax.invert_yaxis()
+    ax.legend(fontsize=7, ncol=5, loc="upper center", bbox_to_anchor=(0.5, -0.35 if len(rows) < 3 else -0.2))
+    ax.set_title("One quick-preset training step, by stage")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def train_presets(args: argparse.Namespace, out: Path) -> dict:
@@ -154,6 +233,9 @@ def bench_train(args: argparse.Namespace) -> dict:
         g = model(torch.from_numpy(np.array(subject.poses[i])), torch.from_numpy(np.array(subject.trans[i]))).refined
     report["rasterizer"] = bench_rasterizer(g, torch.from_numpy(np.array(subject.viewmat[i])),
                                             torch.from_numpy(np.array(subject.K[i])), sizes=(args.size // 2, args.size))
+    threads = (args.threads,) if args.threads else (1, 2)
+    report["step_profile"] = profile_step(subject_dir, "quick", (args.size // 2, args.size), threads, args.repeats)
+    plot_step_profile(report["step_profile"], out / "step_profile.png")
     report["peak_rss_mib"] = round(peak_rss_mib(), 1)
     return report
 
@@ -188,5 +270,20 @@ def train_markdown(r: dict) -> str:
         lines.append(f"| {row['size']} | {row['gaussians']} | {row['tiled_fwd_s']:.3f} | {row['tiled_fwd_bwd_s']:.3f} | "
                      f"{row['dense_fwd_s']:.3f} ({row['dense_fwd_s'] / row['tiled_fwd_s']:.1f}x) | "
                      f"{row['dense_fwd_bwd_s']:.3f} ({row['dense_fwd_bwd_s'] / row['tiled_fwd_bwd_s']:.1f}x) | {oracle} |")
+    lines += step_profile_markdown(r["step_profile"])
     lines += ["", f"Peak resident memory of the whole benchmark process: {r['peak_rss_mib']} MiB.", ""]
     return "\n".join(lines)
+
+
+def step_profile_markdown(rows: list[dict]) -> list[str]:
+    """The step profile as markdown lines: milliseconds per stage, one column per (size, threads) row."""
+    names = list(rows[0]["stages"])
+    lines = ["", "## One quick-preset training step, by stage", "",
+             f"Milliseconds per step, the mean of the timed steps ({rows[0]['gaussians']} Gaussians); \"backward\" "
+             "excludes the rasterizer's backward, shown on its own.", "",
+             "| stage | " + " | ".join(f"{r['size']} px, {r['threads']} thr" for r in rows) + " |",
+             "|---|" + "---|" * len(rows)]
+    for name in names:
+        lines.append(f"| {name} | " + " | ".join(f"{1000 * r['stages'][name]:.1f}" for r in rows) + " |")
+    lines.append("| **step** | " + " | ".join(f"**{1000 * r['step_s']:.1f}**" for r in rows) + " |")
+    return lines + ["", "![one step by stage](step_profile.png)"]

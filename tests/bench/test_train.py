@@ -1,4 +1,4 @@
-"""``trioman bench train`` end to end at a tiny size: curves, hole measure, pictures and the report."""
+"""``trioman bench train`` end to end at a tiny size: curves, hole measure, step profile, pictures and the report."""
 
 import json
 
@@ -13,7 +13,7 @@ from trioman.cli import main  # noqa: E402
 def test_bench_train_writes_curves_holes_and_report(tmp_path):
     out = tmp_path / "bench"
     assert main(["bench", "train", "--out", str(out), "--size", "32", "--frames", "10", "--presets", "quick",
-                 "--iterations", "4", "--eval-every", "2"]) == 0
+                 "--iterations", "4", "--eval-every", "2", "--repeats", "1", "--threads", "1"]) == 0
     report = json.loads((out / "train.json").read_text())
     q = report["presets"]["quick"]
     assert q["iterations"] == 4 and [c["step"] for c in q["curve"]] == [2, 4]
@@ -22,7 +22,14 @@ def test_bench_train_writes_curves_holes_and_report(tmp_path):
     assert 0 <= q["hole_fraction"] <= 1 and q["gaussians"] > 0
     assert q["best_test_psnr"] == max(c["test_psnr"] for c in q["curve"])
     assert [r["size"] for r in report["rasterizer"]] == [16, 32]
+    from trioman.bench.train import STAGES
+
+    profile = report["step_profile"]
+    assert [(r["size"], r["threads"]) for r in profile] == [(16, 1), (32, 1)]
+    for row in profile:
+        assert list(row["stages"]) == [*STAGES, "other"] and all(v >= 0 for k, v in row["stages"].items() if k != "other")
+        assert abs(sum(row["stages"].values()) - row["step_s"]) < 1e-9 and row["stages"]["rasterizer backward"] > 0
     md = (out / "train.md").read_text()
-    assert "holes at 512 px" in md and "2: " in md
-    for name in ("train_psnr_vs_time.png", "render_quick_512.png"):
+    assert "holes at 512 px" in md and "2: " in md and "| rasterizer backward |" in md
+    for name in ("train_psnr_vs_time.png", "render_quick_512.png", "step_profile.png"):
         assert (out / name).stat().st_size > 1000

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from trioman.runtime.render.timing import stage
 from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.avatar.mesh_ops import avatar_points, knn
 from trioman.toolkit.avatar.triplane import Triplane
@@ -142,46 +143,47 @@ class GaussianAvatar(nn.Module):
 
     def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
         """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
-        feats = self.triplane(self.canonical)
-        geo = self.geo_net(feats)
-        s = 3 if self.cfg.anisotropic else 1
-        offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
-        rgb_logit = self.rgb_logits(feats)
-        if self.cfg.pose_dependent:
-            pf = self.pose_features(pose)
-            dgeo = self.geo_offset_net(feats, pf)
-            d_offset, d_log_scale = dgeo[:, :3], dgeo[:, 3 : 3 + s]
-            d_rgb = self.rgb_offset_net(feats, pf)
-        else:
-            d_offset = torch.zeros_like(offset)
-            d_log_scale = torch.zeros_like(log_scale)
-            d_rgb = torch.zeros_like(rgb_logit)
+        with stage("triplane + MLPs"):
+            feats = self.triplane(self.canonical)
+            geo = self.geo_net(feats)
+            s = 3 if self.cfg.anisotropic else 1
+            offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
+            rgb_logit = self.rgb_logits(feats)
+            if self.cfg.pose_dependent:
+                pf = self.pose_features(pose)
+                dgeo = self.geo_offset_net(feats, pf)
+                d_offset, d_log_scale = dgeo[:, :3], dgeo[:, 3 : 3 + s]
+                d_rgb = self.rgb_offset_net(feats, pf)
+            else:
+                d_offset = torch.zeros_like(offset)
+                d_log_scale = torch.zeros_like(log_scale)
+                d_rgb = torch.zeros_like(rgb_logit)
+        with stage("posing (LBS)"):
+            A = skinning_transforms(self.parents, self.joints, pose[None], trans[None])
+            T = blend_transforms(A, self.skin_indices, self.skin_weights)[0]  # [N, 3, 4]
+            if self.cfg.anisotropic:
+                q_local = geo[:, 3 + s :] + torch.tensor([1.0, 0.0, 0.0, 0.0], device=geo.device)
+                R_local = quat_to_matrix(q_local)
+                quats = matrix_to_quat(T[:, :, :3] @ R_local)
+            else:
+                quats = torch.zeros(self.num_gaussians, 4, device=geo.device)
+                quats[:, 0] = 1.0  # identity: isotropic Gaussians need no rotation
+            ones = torch.ones(self.num_gaussians, device=geo.device)
 
-        A = skinning_transforms(self.parents, self.joints, pose[None], trans[None])
-        T = blend_transforms(A, self.skin_indices, self.skin_weights)[0]  # [N, 3, 4]
-        if self.cfg.anisotropic:
-            q_local = geo[:, 3 + s :] + torch.tensor([1.0, 0.0, 0.0, 0.0], device=geo.device)
-            R_local = quat_to_matrix(q_local)
-            quats = matrix_to_quat(T[:, :, :3] @ R_local)
-        else:
-            quats = torch.zeros(self.num_gaussians, 4, device=geo.device)
-            quats[:, 0] = 1.0  # identity: isotropic Gaussians need no rotation
-        ones = torch.ones(self.num_gaussians, device=geo.device)
+            def gaussians(pos: torch.Tensor, log_s: torch.Tensor, logit: torch.Tensor) -> Gaussians:
+                means = apply_transforms(T[None], pos)[0]
+                scales = torch.exp((self.base_log_scale + log_s).clamp(-12.0, 2.0)).expand(-1, 3)
+                return Gaussians(means, quats, scales, ones, torch.sigmoid(logit))
 
-        def gaussians(pos: torch.Tensor, log_s: torch.Tensor, logit: torch.Tensor) -> Gaussians:
-            means = apply_transforms(T[None], pos)[0]
-            scales = torch.exp((self.base_log_scale + log_s).clamp(-12.0, 2.0)).expand(-1, 3)
-            return Gaussians(means, quats, scales, ones, torch.sigmoid(logit))
-
-        plain_pos = self.canonical + offset
-        return AvatarOutput(
-            plain=gaussians(plain_pos, log_scale, rgb_logit),
-            refined=gaussians(plain_pos + d_offset, log_scale + d_log_scale, rgb_logit + d_rgb),
-            offset=offset,
-            log_scale=log_scale,
-            delta_offset=d_offset,
-            delta_rgb=d_rgb,
-        )
+            plain_pos = self.canonical + offset
+            return AvatarOutput(
+                plain=gaussians(plain_pos, log_scale, rgb_logit),
+                refined=gaussians(plain_pos + d_offset, log_scale + d_log_scale, rgb_logit + d_rgb),
+                offset=offset,
+                log_scale=log_scale,
+                delta_offset=d_offset,
+                delta_rgb=d_rgb,
+            )
 
     def laplacian(self, values: torch.Tensor) -> torch.Tensor:
         """values: [N, C] -> [N, C], each value minus the mean of its neighbours."""

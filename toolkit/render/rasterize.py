@@ -46,6 +46,7 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.function import once_differentiable
 
+from trioman.runtime.render.timing import stage
 from trioman.toolkit.render.projection import (
     ALPHA_THRESHOLD,
     EPS2D,
@@ -250,6 +251,12 @@ class _Raster(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, g_color, g_T):
+        with stage("rasterizer backward"):
+            return _Raster._backward(ctx, g_color, g_T)
+
+    @staticmethod
+    def _backward(ctx, g_color, g_T):
+        """The backward pass (class doc): per tile chunk, its blocks back to front."""
         params, d, pair_gauss, terms, tile_start, tile_count, T_final = ctx.saved_tensors
         s = ctx.s
         g_terms = torch.zeros_like(terms)  # [P + 1, 3 s + 4]
@@ -354,20 +361,23 @@ def rasterize(
     if means.is_cuda and _gsplat_available():
         return _rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height, background,
                                  near_plane, far_plane)
-    p = _project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
-    if p.ids.numel() == 0:
-        return nothing_visible()
+    with stage("projection"):
+        p = _project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
+        if p.ids.numel() == 0:
+            return nothing_visible()
+        f64 = torch.float64
+        gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(opacities[p.ids].to(f64))[:, None],
+                        colors[p.ids].to(f64), p.depths[:, None]], 1)  # [M, 10]
     s = tile_size
-    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
-    f64 = torch.float64
-    gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(opacities[p.ids].to(f64))[:, None],
-                    colors[p.ids].to(f64), p.depths[:, None]], 1)  # [M, 10]
+    with stage("tile binning"):
+        bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
     ty, tx = torch.meshgrid(torch.arange(bins.tiles_y, device=dev), torch.arange(bins.tiles_x, device=dev),
                             indexing="ij")
     li = torch.arange(s, device=dev)
     inside = (ty.reshape(-1, 1, 1) * s + li[:, None] < height) & (tx.reshape(-1, 1, 1) * s + li[None, :] < width)
-    color, T_final = _Raster.apply(gq, p.radii, bins.pair_gauss, bins.pair_tile, bins.tile_start, bins.tile_count,
-                                   bins.tiles_x, inside, s, chunk_elements, dt)
+    with stage("rasterizer forward"):
+        color, T_final = _Raster.apply(gq, p.radii, bins.pair_gauss, bins.pair_tile, bins.tile_start,
+                                       bins.tile_count, bins.tiles_x, inside, s, chunk_elements, dt)
 
     def to_image(x):  # [T, C, s^2] -> [H, W, C]
         C = x.shape[1]

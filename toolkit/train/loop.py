@@ -14,6 +14,7 @@ from tqdm import tqdm
 from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.image_io import atomic_write_text, naming_os_errors, remove_temp_files
+from trioman.runtime.render.timing import stage
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
 from trioman.toolkit.metrics import psnr, ssim, ssim_map
@@ -224,14 +225,18 @@ def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict,
     for g in sets:
         img = render(g, sample["viewmat"], sample["K"], width, height, bg)
         pred = img if pred is None else pred
-        loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips, sample.get("pixel_weights"))
-    loss = loss + regularisers(model, out, cfg)
+        with stage("loss"):
+            loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips, sample.get("pixel_weights"))
+    with stage("loss"):
+        loss = loss + regularisers(model, out, cfg)
     hint = f"(learning rate {learning_rate(cfg, step):.3g}; the last checkpoint is intact)"
     optimizer.zero_grad(set_to_none=True)
     if guard.finite_ok(loss, step, "loss", hint):
-        loss.backward()
+        with stage("backward"):
+            loss.backward()
         if guard.grads_ok(model.parameters(), step, hint):
-            optimizer.step()
+            with stage("optimizer"):
+                optimizer.step()
     with torch.no_grad():
         p = float(psnr(pred.permute(2, 0, 1)[None].clamp(0, 1), gt.permute(2, 0, 1)[None])[0])
     return float(loss.detach()), p

@@ -62,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--examiner", default="examiner_nano", help="models: Examiner config name (default examiner_nano)")
     parser.add_argument("--models", default="out/bench_models",
                         help="deploy: the `bench models` report folder whose trained runs are exported (default out/bench_models)")
-    parser.add_argument("--repeats", type=int, default=5, help="deploy: timed calls per variant (the best counts)")
-    parser.add_argument("--threads", type=int, default=None, help="deploy: onnxruntime intra-op threads (default: ORT's)")
+    parser.add_argument("--repeats", type=int, default=5, help="deploy: timed calls per variant (the best counts); train: timed steps of the step profile")
+    parser.add_argument("--threads", type=int, default=None, help="deploy: onnxruntime intra-op threads (default: ORT's); train: the step profile's torch threads (default 1 and 2)")
     parser.add_argument("--augment-frames", type=int, default=8, help="deploy: source frames of the augment run")
     parser.add_argument("--seeds", type=int, default=2, help="ablation: seeds of the baseline and the full system (default 2); stability: extreme scenes drawn")
     parser.add_argument("--iterations", type=int, default=None,
