@@ -2,7 +2,7 @@
 held-out subjects' test frames (novel poses and views), as in the paper (train on some subjects,
 evaluate on others).
 
-- Refiner, for conditions none / tex / tex+geo (the paper's Table 2): PSNR/SSIM (masked protocol and
+- Refiner, for conditions none / tex / tex+geo (the paper's Table 2) and warp / warp+geo: PSNR/SSIM (masked protocol and
   unmasked) of the coarse render and of the refined coarse view against the GT. The texture reference
   of a test frame is the training frame that sees the body from the closest direction.
 - Examiner: AUROC of real (I^T, reference) against coarse (I_c^T, reference) pairs, with two
@@ -65,8 +65,8 @@ def bench_models(args: argparse.Namespace) -> dict:
     refined = {}
     for key, model in refiners.items():
         cond = model.config.conditions
-        refined[key] = batched(lambda c, r, n: model(*refiner_inputs(tb._replace(coarse=c, reference=r, normal=n), cond))[:, 0],
-                                coarse, ref, tb.normal)
+        reference = refiner_inputs(tb, cond)[1] if model.config.views > 1 else ref  # warp*: the aligned reference
+        refined[key] = batched(lambda c, r, n: model(c, r, n)[:, 0], coarse, reference, tb.normal)
         label = cond if key in CONDITIONS else f"{cond}, baselines on a {key.rsplit('_', 1)[1]} of frames"
         rows[f"refined ({label})"] = mean_metrics(refined[key], gt, mask)
 

@@ -20,6 +20,7 @@ class Frames(NamedTuple):
     coarse: np.ndarray  # I_c^T
     normal: np.ndarray  # I_g^T
     reference: np.ndarray  # I^{T+k} (calibration) / the nearest-view training frame (gate)
+    aligned: np.ndarray | None = None  # T's aligned reference, coarse where nothing was carried (warp* Refiners)
 
     @property
     def count(self) -> int:
@@ -37,12 +38,14 @@ def _resize(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 def _frames_at(t: Any, size: tuple[int, int]) -> Frames:
-    return Frames(_resize(t.gt, size), _resize(t.coarse, size), _resize(t.normal, size), _resize(t.reference, size))
+    return Frames(_resize(t.gt, size), _resize(t.coarse, size), _resize(t.normal, size), _resize(t.reference, size),
+                  None if t.aligned is None else _resize(t.aligned, size))
 
 
 def synthetic_frames(n: int, size: tuple[int, int], seed: int) -> Frames:
     """Random stand-ins for triplet frames: smooth colour textures (gt), a blurred, colour-shifted, noisy
-    copy (coarse), a shifted copy (reference) and another texture (normal)."""
+    copy (coarse), a shifted copy (reference), another texture (normal) and the gt shifted by a pixel in
+    the left half, the coarse copy in the right (aligned)."""
     import cv2
 
     rng = np.random.default_rng(seed)
@@ -57,7 +60,9 @@ def synthetic_frames(n: int, size: tuple[int, int], seed: int) -> Frames:
     coarse = np.clip(coarse + 0.03 * rng.standard_normal(gt.shape, dtype=np.float32), 0, 1)
     reference = np.roll(gt, (2, 2), axis=(1, 2))
     normal = np.stack([texture() for _ in range(n)])
-    return Frames(gt.astype(np.float32), coarse.astype(np.float32), normal, reference.astype(np.float32))
+    aligned = np.concatenate([np.roll(gt, (1, 1), axis=(1, 2))[:, :, : W // 2], coarse[:, :, W // 2:]], axis=2)
+    return Frames(gt.astype(np.float32), coarse.astype(np.float32), normal, reference.astype(np.float32),
+                  aligned.astype(np.float32))
 
 
 @dataclass

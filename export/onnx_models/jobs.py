@@ -204,13 +204,21 @@ class RefinerJob(Job):
 
     def extra_meta(self) -> dict[str, str]:
         return {"conditions": self.config.conditions,
-                "normalization": "inputs RGB float32 NCHW [B, 3, H, W] in [0, 1] (coarse render, real reference "
-                                 "frame, body normal map: as many as the conditions use), not normalised; output "
-                                 "[B, V, 3, H, W] in (0, 1), views in the order coarse, reference, normal"}
+                "normalization": "inputs RGB float32 NCHW [B, 3, H, W] in [0, 1] (coarse render, reference: a real "
+                                 "frame, or with conditions warp* the aligned reference filled with the coarse render, "
+                                 "body normal map: as many as the conditions use), not normalised; output "
+                                 "[B, V, 3, H, W] in (0, 1), views in the order of view_images (coarse, reference, "
+                                 "normal; warp*: aligned, coarse, normal)"}
 
     def feeds(self, frames: Frames) -> list[dict[str, np.ndarray]]:
         batch = refiner_frames_per_batch(self.size)
-        arrays = {"coarse": frames.coarse, "reference": frames.reference, "normal": frames.normal}
+        reference = frames.reference
+        if self.config.conditions in rt.ALIGNED_CONDITIONS:
+            if frames.aligned is None:
+                raise ExportError(f"calibration: a {self.config.conditions!r} Refiner takes aligned references; these triplets "
+                                  "hold none (version 1: build them again)")
+            reference = frames.aligned
+        arrays = {"coarse": frames.coarse, "reference": reference, "normal": frames.normal}
         return [{n: nchw(arrays[n][i:i + batch]) for n in self.inputs} for i in range(0, frames.count, batch)]
 
     def real_feeds(self, frames: Frames) -> list[dict[str, np.ndarray]]:

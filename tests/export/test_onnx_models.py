@@ -363,6 +363,28 @@ def test_single_file_export_of_a_module_at_a_non_square_size(tmp_path):
         om.export_refiner_onnx(model, tmp_path / "r.onnx", size=(16, 24))
 
 
+def test_a_warp_refiner_exports_and_calibrates_on_aligned_references(corpus, tmp_path):
+    """A "warp+geo" Refiner: the graph takes the aligned reference as ``reference`` and returns the refined aligned
+    image as view 0, as torch does; int8 calibrates on aligned references (synthetic stand-ins here), and
+    triplets without them (version 1) are refused by name."""
+    model = create_refiner(RefinerConfig(**{**REFINER_CFG.to_dict(), "conditions": "warp+geo"}), seed=2).eval()
+    entry = om.export_refiner_onnx(model, tmp_path / "w.onnx", size=S)
+    assert entry["status"] == "written" and entry["parity_max_abs"] <= om.REFINER_ATOL
+    m = load_model(tmp_path / "w.onnx", "refiner")
+    assert m.conditions == "warp+geo" and m.input_names == ("coarse", "reference", "normal")
+    rng = np.random.default_rng(0)
+    coarse, aligned, normal = (rng.random((2, S, S, 3), dtype=np.float32) for _ in range(3))
+    with torch.no_grad():
+        want = model(_t(coarse), _t(aligned), _t(normal))[:, 0].permute(0, 2, 3, 1).numpy()
+    np.testing.assert_allclose(m.refine(coarse, reference=aligned, normal=normal), want, atol=1e-4)
+    int8 = om.export_refiner_onnx(model, tmp_path / "w8.onnx", size=S, precision="int8", calibration_frames=4, gate_frames=4)
+    assert int8["status"] in ("written", "REJECTED")
+    with pytest.raises(om.ExportError, match="calibration: a 'warp\\+geo' Refiner takes aligned references"):
+        om.export_refiner_onnx(model, tmp_path / "w8b.onnx", size=S, precision="int8", calibration=corpus["triplets"],
+                               calibration_frames=4, gate_frames=4)
+    assert not (tmp_path / "w8b.onnx").exists()
+
+
 # --------------------------------------------------------------------------------------------------
 # the command line
 
