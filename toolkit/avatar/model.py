@@ -10,18 +10,20 @@ the body's skinning weights. Two sets come out of each forward pass, as in ExAva
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from trioman.runtime.render.timing import stage
 from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.avatar.mesh_ops import avatar_points, knn
 from trioman.toolkit.avatar.triplane import Triplane
-from trioman.toolkit.body.skinning import apply_transforms, blend_transforms, skinning_transforms
+from trioman.toolkit.body.skinning import apply_transforms, skinning_transforms
 from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matrix_to_rot6d, quat_to_matrix
 
 # Joints whose rotations condition the pose-dependent MLPs: the body, not fingers, toes or eyes.
@@ -88,7 +90,11 @@ class PoseMLP(nn.Module):
         self.rest = _mlp(hidden, hidden, out_dim, layers=1)
 
     def forward(self, feats: torch.Tensor, pose_feat: torch.Tensor) -> torch.Tensor:
-        return self.rest(torch.relu(self.feat_in(feats) + self.pose_in(pose_feat)))
+        return self.from_feat_in(self.feat_in(feats), pose_feat)
+
+    def from_feat_in(self, feat_in: torch.Tensor, pose_feat: torch.Tensor) -> torch.Tensor:
+        """feat_in: [N, H] the first layer's point part (``feat_in(feats)``) -> [N, out_dim]."""
+        return self.rest(torch.relu(feat_in + self.pose_in(pose_feat)))
 
 
 class GaussianAvatar(nn.Module):
@@ -138,29 +144,56 @@ class GaussianAvatar(nn.Module):
 
     def rgb_logits(self, feats: torch.Tensor) -> torch.Tensor:
         """feats: [N, F] triplane features -> [N, 3] pose-independent colour logits."""
-        logits = self.rgb_net(feats)
+        return self._with_point_rgb(self.rgb_net(feats))
+
+    def _with_point_rgb(self, logits: torch.Tensor) -> torch.Tensor:
         return logits + self.point_rgb if self.cfg.point_colors else logits
+
+    def _first_layers(self, feats: torch.Tensor) -> list[torch.Tensor]:
+        """feats [N, F] -> the first layers of the MLPs that read them, [N, H] each (geo, rgb, then the pose
+        MLPs' point parts): one matrix product for all of them, so the backward pass builds one gradient of
+        the features instead of summing one per MLP."""
+        layers = [self.geo_net[0], self.rgb_net[0]]
+        if self.cfg.pose_dependent:
+            layers += [self.geo_offset_net.feat_in, self.rgb_offset_net.feat_in]
+        out = F.linear(feats, torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers]))
+        return list(out.split([m.out_features for m in layers], dim=1))
+
+    def _skin_matrix(self) -> torch.Tensor:
+        """The skinning weights as a sparse [N, J] matrix (CSR, repeated joints summed), rebuilt when the
+        skin buffers change (a loaded state dict)."""
+        key = (self.skin_indices._version, self.skin_weights._version, self.skin_weights.data_ptr())
+        if getattr(self, "_skin_key", None) != key:
+            n, k = self.skin_indices.shape
+            rows = torch.arange(n, device=self.skin_indices.device).repeat_interleave(k)
+            coo = torch.sparse_coo_tensor(torch.stack([rows, self.skin_indices.reshape(-1)]), self.skin_weights.reshape(-1),
+                                          (n, self.joints.shape[0]), check_invariants=True)
+            with warnings.catch_warnings():  # torch calls its CSR layout beta; sparse.mm on it is the fast LBS
+                warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+                self._skin_csr, self._skin_key = coo.coalesce().to_sparse_csr(), key
+        return self._skin_csr
 
     def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
         """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
         with stage("triplane + MLPs"):
             feats = self.triplane(self.canonical)
-            geo = self.geo_net(feats)
+            z = self._first_layers(feats)
+            geo = self.geo_net[1:](z[0])
             s = 3 if self.cfg.anisotropic else 1
             offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
-            rgb_logit = self.rgb_logits(feats)
+            rgb_logit = self._with_point_rgb(self.rgb_net[1:](z[1]))
             if self.cfg.pose_dependent:
                 pf = self.pose_features(pose)
-                dgeo = self.geo_offset_net(feats, pf)
+                dgeo = self.geo_offset_net.from_feat_in(z[2], pf)
                 d_offset, d_log_scale = dgeo[:, :3], dgeo[:, 3 : 3 + s]
-                d_rgb = self.rgb_offset_net(feats, pf)
+                d_rgb = self.rgb_offset_net.from_feat_in(z[3], pf)
             else:
                 d_offset = torch.zeros_like(offset)
                 d_log_scale = torch.zeros_like(log_scale)
                 d_rgb = torch.zeros_like(rgb_logit)
         with stage("posing (LBS)"):
-            A = skinning_transforms(self.parents, self.joints, pose[None], trans[None])
-            T = blend_transforms(A, self.skin_indices, self.skin_weights)[0]  # [N, 3, 4]
+            A = skinning_transforms(self.parents, self.joints, pose[None], trans[None])[0]  # [J, 4, 4]
+            T = torch.sparse.mm(self._skin_matrix(), A[:, :3].reshape(-1, 12)).view(-1, 3, 4)  # [N, 3, 4]
             if self.cfg.anisotropic:
                 q_local = geo[:, 3 + s :] + torch.tensor([1.0, 0.0, 0.0, 0.0], device=geo.device)
                 R_local = quat_to_matrix(q_local)
@@ -176,9 +209,11 @@ class GaussianAvatar(nn.Module):
                 return Gaussians(means, quats, scales, ones, torch.sigmoid(logit))
 
             plain_pos = self.canonical + offset
+            plain = gaussians(plain_pos, log_scale, rgb_logit)
             return AvatarOutput(
-                plain=gaussians(plain_pos, log_scale, rgb_logit),
-                refined=gaussians(plain_pos + d_offset, log_scale + d_log_scale, rgb_logit + d_rgb),
+                plain=plain,  # without pose dependence the deltas are zeros: the refined set is the plain one
+                refined=gaussians(plain_pos + d_offset, log_scale + d_log_scale, rgb_logit + d_rgb)
+                if self.cfg.pose_dependent else plain,
                 offset=offset,
                 log_scale=log_scale,
                 delta_offset=d_offset,

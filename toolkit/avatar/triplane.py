@@ -21,8 +21,9 @@ class Triplane(torch.nn.Module):
         return 3 * self.planes.shape[1]
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
-        """points: [N, 3] -> features [N, 3C] (xy, xz and yz planes concatenated)."""
+        """points: [N, 3] -> features [N, 3C] (xy, xz and yz planes concatenated), the transposed view of a
+        contiguous [3C, N] (grid_sample's layout: no copy either way, and a linear layer reads it as is)."""
         p = ((points - self.center) / self.half_size).clamp(-1, 1)
         coords = torch.stack([p[:, [0, 1]], p[:, [0, 2]], p[:, [1, 2]]])  # [3, N, 2]
-        feats = F.grid_sample(self.planes, coords[:, :, None, :], mode="bilinear", align_corners=True)  # [3, C, N, 1]
-        return feats[..., 0].permute(2, 0, 1).reshape(points.shape[0], -1)
+        feats = F.grid_sample(self.planes, coords[:, None], mode="bilinear", align_corners=True)  # [3, C, 1, N]
+        return feats.reshape(-1, points.shape[0]).T

@@ -20,10 +20,12 @@ walk when all its pixels have stopped. The backward pass recomputes each block b
 per pixel and Gaussian is stored) and applies the gradient of the blending equations, with the
 per-pixel skip / cap / stop decisions as constants, as gsplat's CUDA backward does.
 
-Tile size. gsplat's 16 x 16 tiles suit a GPU thread block. Here the dense cost is pairs x s^2 and a
-small Gaussian (radius ~5 px at the avatar's 1 cm scale) fills little of a 16 x 16 tile, so 8 x 8
-tiles (``DEFAULT_TILE``) do about half the work of 16 x 16 at this scale for a little more binning; the
-semantics do not depend on the tile size (tests run several).
+Tile size. gsplat's 16 x 16 tiles suit a GPU thread block. Here the dense cost is pairs x s^2, and a
+Gaussian's box fills little of a tile much wider than the box: smaller tiles waste fewer pixels, for more
+pairs to bin. By default (:func:`tile_side`) the side is twice the median radius of the visible
+Gaussians' boxes, within [4, 16]: 4 for the quick avatar at 128 px (median radius 2), 6 at 256 px, where
+8 costs about a fifth more in forward and backward (docs/speed.md). The semantics do not depend on the
+tile size (tests run several).
 
 Precision. The render dtype is float32 (float64 when ``means`` is float64, for gradient checks).
 alpha and T are float32 and the stop test is ``T * (1 - alpha) <= 1e-4`` on float32 values in both
@@ -57,7 +59,7 @@ from trioman.toolkit.render.projection import (
 )
 from trioman.toolkit.render.tiles import bin_gaussians
 
-DEFAULT_TILE = 8  # tile side in pixels (module doc)
+TILE_RANGE = (4, 16)  # the default tile side's bounds, pixels (module doc)
 DEFAULT_CHUNK_ELEMENTS = 1 << 18  # pixel x Gaussian entries per dense block tensor (1 MiB in float32)
 KB_MIN = 16  # shortest block along the lists
 
@@ -311,6 +313,13 @@ class _Raster(torch.autograd.Function):
         return (g_gq,) + (None,) * 10
 
 
+def tile_side(radii: torch.Tensor) -> int:
+    """radii [M, 2] of the visible Gaussians (whole pixels) -> the default tile side: twice the median of
+    the larger radius, within ``TILE_RANGE`` (module doc)."""
+    median = float(radii.detach().amax(1).median())
+    return int(min(max(2 * median, TILE_RANGE[0]), TILE_RANGE[1]))
+
+
 # --------------------------------------------------------------------------------------------
 # public entry point
 
@@ -330,7 +339,7 @@ def rasterize(
     far_plane: float = 1e10,
     *,
     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
-    tile_size: int = DEFAULT_TILE,
+    tile_size: int | None = None,
 ) -> RenderOutput:
     """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]); see the module doc.
 
@@ -338,14 +347,16 @@ def rasterize(
     alpha-weighted sum of camera depths, not normalised. Outputs are float32 (float64 for float64
     ``means``). N == 0 or nothing visible gives the background. On CUDA tensors with gsplat installed
     the work goes to ``gsplat.rasterization`` (see :func:`_rasterize_gsplat`). ``chunk_elements``
-    bounds the dense pixel x Gaussian block tensors (peak memory); ``tile_size`` is the tile side.
+    bounds the dense pixel x Gaussian block tensors (peak memory); ``tile_size`` is the tile side (None:
+    :func:`tile_side` of the visible Gaussians).
     Neither changes the result beyond float32 rounding of the colour sums.
     """
     n, width, height = check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height,
                                     background, near_plane, far_plane)
     if isinstance(chunk_elements, bool) or not isinstance(chunk_elements, int) or chunk_elements < 1:
         raise ValueError(f"chunk_elements: must be an int >= 1, got {chunk_elements!r}")
-    if isinstance(tile_size, bool) or not isinstance(tile_size, int) or not 1 <= tile_size <= 64:
+    if tile_size is not None and (isinstance(tile_size, bool) or not isinstance(tile_size, int)
+                                  or not 1 <= tile_size <= 64):
         raise ValueError(f"tile_size: must be an int in [1, 64], got {tile_size!r}")
     dt = torch.float64 if means.dtype == torch.float64 else _F32
     dev = means.device
@@ -368,8 +379,8 @@ def rasterize(
         f64 = torch.float64
         gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(opacities[p.ids].to(f64))[:, None],
                         colors[p.ids].to(f64), p.depths[:, None]], 1)  # [M, 10]
-    s = tile_size
     with stage("tile binning"):
+        s = tile_side(p.radii) if tile_size is None else tile_size
         bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
     ty, tx = torch.meshgrid(torch.arange(bins.tiles_y, device=dev), torch.arange(bins.tiles_x, device=dev),
                             indexing="ij")

@@ -101,3 +101,89 @@ def test_same_seed_same_initial_weights_and_global_rng_untouched():
     b = GaussianAvatar(grid_mesh(), AvatarConfig(seed=4, **SMALL))
     for (k, va), vb in zip(a.state_dict().items(), b.state_dict().values()):
         assert torch.equal(va, vb), k
+
+
+def _reference_forward(model: GaussianAvatar, pose: torch.Tensor, trans: torch.Tensor):
+    """The avatar's forward pass as written before issue 27 (grid_sample's [N, 3C] copy, one first layer per
+    MLP, LBS by gathering the joints' transforms, both sets computed): the oracle of the faster one."""
+    import torch.nn.functional as F
+
+    from trioman.toolkit.avatar.model import Gaussians
+    from trioman.toolkit.body.skinning import apply_transforms, blend_transforms, skinning_transforms
+    from trioman.toolkit.rotations import matrix_to_quat, quat_to_matrix
+
+    tp = model.triplane
+    p = ((model.canonical - tp.center) / tp.half_size).clamp(-1, 1)
+    coords = torch.stack([p[:, [0, 1]], p[:, [0, 2]], p[:, [1, 2]]])
+    feats = F.grid_sample(tp.planes, coords[:, :, None, :], mode="bilinear", align_corners=True)
+    feats = feats[..., 0].permute(2, 0, 1).reshape(p.shape[0], -1)
+    cfg, s = model.cfg, 3 if model.cfg.anisotropic else 1
+    geo = model.geo_net(feats)
+    offset, log_scale = geo[:, :3], geo[:, 3:3 + s]
+    logit = model.rgb_logits(feats)
+    d_off, d_ls, d_rgb = torch.zeros_like(offset), torch.zeros_like(log_scale), torch.zeros_like(logit)
+    if cfg.pose_dependent:
+        pf = model.pose_features(pose)
+        dgeo = model.geo_offset_net(feats, pf)
+        d_off, d_ls, d_rgb = dgeo[:, :3], dgeo[:, 3:3 + s], model.rgb_offset_net(feats, pf)
+    A = skinning_transforms(model.parents, model.joints, pose[None], trans[None])
+    T = blend_transforms(A, model.skin_indices, model.skin_weights)[0]
+    n = model.num_gaussians
+    if cfg.anisotropic:
+        quats = matrix_to_quat(T[:, :, :3] @ quat_to_matrix(geo[:, 3 + s:] + torch.tensor([1.0, 0.0, 0.0, 0.0])))
+    else:
+        quats = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n, 4)
+
+    def gaussians(pos, log_s, lg):
+        scales = torch.exp((model.base_log_scale + log_s).clamp(-12.0, 2.0)).expand(-1, 3)
+        return Gaussians(apply_transforms(T[None], pos)[0], quats, scales, torch.ones(n), torch.sigmoid(lg))
+
+    pos = model.canonical + offset
+    return (gaussians(pos, log_scale, logit), gaussians(pos + d_off, log_scale + d_ls, logit + d_rgb),
+            offset, log_scale)
+
+
+@pytest.mark.parametrize("options", [dict(pose_dependent=False, point_colors=True),
+                                     dict(anisotropic=True, subdivisions=1)])
+def test_training_step_matches_the_reference_step(options):
+    """One training step (forward, render of both sets, loss, gradients, Adam update) with the avatar's and the
+    rasterizer's fast paths against the reference forward and the rasterizer at 8 px tiles: within 1e-5."""
+    from trioman.toolkit.render import rasterize
+
+    mesh = grid_mesh()
+    torch.manual_seed(0)
+    models = [GaussianAvatar(mesh, AvatarConfig(**SMALL, **options)) for _ in range(2)]
+    with torch.no_grad():  # non-zero heads, so every path carries a gradient
+        for prm in models[0].parameters():
+            prm.add_(0.05 * torch.randn_like(prm))
+    models[1].load_state_dict(models[0].state_dict())
+    pose, trans = torch.full((4, 3), 0.2), torch.tensor([0.0, 0.0, 0.1])
+    K = torch.tensor([[40.0, 0, 24], [0, 40.0, 24], [0, 0, 1]])
+    viewmat = torch.eye(4)
+    viewmat[2, 3] = 1.5
+    target = torch.rand(48, 48, 3, generator=torch.Generator().manual_seed(1))
+    results = []
+    for model, fast in zip(models, (True, False)):
+        optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+        if fast:
+            out = model(pose, trans)
+            sets, reg = (out.plain, out.refined), out.offset.square().mean() + out.log_scale.square().mean()
+        else:
+            plain, refined, offset, log_scale = _reference_forward(model, pose, trans)
+            sets, reg = (plain, refined), offset.square().mean() + log_scale.square().mean()
+        loss = reg
+        for g in sets:
+            img = rasterize(*g, viewmat, K, 48, 48, background=torch.ones(3), **({} if fast else {"tile_size": 8})).rgb
+            loss = loss + (img - target).abs().mean()
+        loss.backward()
+        grads = {n: p.grad.clone() for n, p in model.named_parameters()}
+        optimizer.step()
+        results.append((loss.detach(), [g.means.detach() for g in sets], grads, dict(model.named_parameters())))
+    (loss_f, means_f, grads_f, params_f), (loss_r, means_r, grads_r, params_r) = results
+    assert abs(float(loss_f - loss_r)) < 1e-5
+    for a, b in zip(means_f, means_r):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=0)
+    for name in grads_r:
+        scale = max(1.0, float(grads_r[name].abs().max()))
+        torch.testing.assert_close(grads_f[name], grads_r[name], atol=1e-5 * scale, rtol=0, msg=name)
+        torch.testing.assert_close(params_f[name].detach(), params_r[name].detach(), atol=1e-5, rtol=0, msg=name)
