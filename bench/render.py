@@ -1,6 +1,8 @@
 """Renderer timings for ``trioman bench render``: the numpy runtime renderer against the torch
 rasterizer's forward pass and the brute-force test oracle, measured side by side on one avatar in one
-run, plus the cost of Gaussians the view does not need (off screen, behind the camera)."""
+run, plus the cost of Gaussians the view does not need (off screen, behind the camera), and the numpy
+renderer's time per stage (:func:`stage_profile`) on the default (13.7k), quick (54.8k) and full (219k)
+avatars."""
 
 from __future__ import annotations
 
@@ -19,10 +21,10 @@ from trioman.toolkit.render import rasterize as rasterize_torch
 KEYS = ("means", "quats", "scales", "opacities", "colors")
 
 
-def avatar_scene(avatar_run: str | None = None) -> dict:
+def avatar_scene(avatar_run: str | None = None, avatar_cfg=None) -> dict:
     """Gaussians (float32 numpy) of an avatar at its first test frame's pose, with that frame's camera
     (K for a square image of side 2 cx, rescaled per size later). ``avatar_run``: a trained run folder;
-    None: the untrained default avatar of the default synthetic subject."""
+    None: an untrained avatar (``avatar_cfg``, default ``AvatarConfig()``) of the default synthetic subject."""
     if avatar_run is not None:
         from trioman.toolkit.evaluate import load_run
 
@@ -37,11 +39,11 @@ def avatar_scene(avatar_run: str | None = None) -> dict:
 
         cfg = SynthConfig(seed=0)
         mesh = build_body(cfg)[0]
-        model = GaussianAvatar(mesh, AvatarConfig())
+        model = GaussianAvatar(mesh, avatar_cfg or AvatarConfig())
         seq = plan_sequences(mesh, cfg)
         i = seq.split.index("test")
         pose, trans, viewmat, K = seq.pose[i], seq.trans[i], seq.viewmat[i], seq.K[i]
-        source = f"default avatar (untrained), first test frame ({seq.sequence[i]})"
+        source = f"{'default' if avatar_cfg is None else 'an'} avatar (untrained), first test frame ({seq.sequence[i]})"
     with torch.no_grad():
         g = model.eval()(torch.from_numpy(np.asarray(pose, np.float32)), torch.from_numpy(np.asarray(trans, np.float32)))
     scene = {k: getattr(g.refined, k).numpy().astype(np.float32) for k in KEYS}
@@ -111,10 +113,41 @@ def bench_renderers(scene: dict, sizes=(256, 512), repeats: int = 7, oracle_size
     return report
 
 
+def stage_profile(scenes: dict[str, dict], sizes: tuple[int, ...], repeats: int = 3) -> list[dict]:
+    """Milliseconds per stage of the numpy renderer (the marks of runtime.render.timing), the mean of ``repeats``
+    calls after one warm-up, per scene and size. -> rows: scene, gaussians, size, stages {name: ms}, total_ms
+    (the call's wall time; "checks" is the input checks and the rest outside the marks), fps."""
+    from trioman.runtime.render.timing import record_stages
+
+    bg = np.ones(3, dtype=np.float32)
+    rows = []
+    for name, scene in scenes.items():
+        for size in sizes:
+            a = scene_args(scene, size)
+            rasterize_numpy(*a, background=bg)
+            with record_stages() as record:
+                t0 = time.perf_counter()
+                for _ in range(repeats):
+                    rasterize_numpy(*a, background=bg)
+                total = (time.perf_counter() - t0) / repeats
+            stages = {k: 1e3 * v / repeats for k, v in record.items()}
+            stages["checks"] = 1e3 * total - sum(stages.values())
+            rows.append({"scene": name, "gaussians": len(scene["means"]), "size": size, "stages": stages,
+                         "total_ms": 1e3 * total, "fps": 1 / total})
+    return rows
+
+
 def bench_render(args: argparse.Namespace) -> dict:
-    """The report of ``trioman bench render`` (--avatar-run, else the untrained default avatar)."""
+    """The report of ``trioman bench render`` (--avatar-run, else the untrained default avatar) at --size and
+    twice it, and the stage profile on the default, quick and full avatars (untrained)."""
+    from trioman.toolkit.train.config import preset
+
     report = {"target": "render", "machine": machine(), "torch_threads": torch.get_num_threads()}
-    report.update(bench_renderers(avatar_scene(args.avatar_run)))
+    sizes = (args.size, 2 * args.size)
+    scene = avatar_scene(args.avatar_run)
+    report.update(bench_renderers(scene, sizes, oracle_size=min(128, args.size // 2)))
+    scenes = {"default": scene, **{name: avatar_scene(None, preset(name).avatar) for name in ("quick", "full")}}
+    report["stages"] = stage_profile(scenes, sizes)
     report["peak_rss_mib"] = round(peak_rss_mib(), 1)
     return report
 
@@ -142,6 +175,17 @@ def render_markdown(r: dict) -> str:
               + ", ".join(f"{row['size']}: {row['numpy_tracemalloc_peak_mib']:.1f} MiB "
                           f"({row['extra_numpy_tracemalloc_peak_mib']:.1f} MiB with the extras)" for row in r["rows"])
               + f"; peak resident memory of the whole benchmark process {r['peak_rss_mib']} MiB.", ""]
+    lines += ["## The numpy renderer by stage", "",
+              "Milliseconds per call (mean of 3 after a warm-up); untrained avatars at the same pose and camera; "
+              "\"checks\" is the input checks and the rest outside the marked stages.", ""]
+    names = list(r["stages"][0]["stages"])
+    lines += ["| avatar | Gaussians | size | " + " | ".join(names) + " | total ms | fps |",
+              "|---|---|---|" + "---|" * (len(names) + 2)]
+    for row in r["stages"]:
+        lines.append(f"| {row['scene']} | {row['gaussians']} | {row['size']} | "
+                     + " | ".join(f"{row['stages'].get(k, 0.0):.1f}" for k in names)
+                     + f" | {row['total_ms']:.1f} | {row['fps']:.1f} |")
+    lines.append("")
     if "oracle" in r:
         o = r["oracle"]
         lines += [f"Brute-force oracle (trioman.runtime.render._reference, float64, every Gaussian at every pixel), "

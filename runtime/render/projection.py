@@ -239,10 +239,9 @@ def project(
     # Isotropic Gaussians (s_0 = s_1 = s_2 = s) have Sigma = s^2 I whatever R: M = s R_view, exactly
     # the same N N^T, so their quaternions are never converted.
     sc = _rows(scales, ids)
-    Mt = np.empty((len(ids), 3, 3))
     iso = (sc[:, 0] == sc[:, 1]) & (sc[:, 1] == sc[:, 2])
-    Mt[iso] = sc[iso, 0, None, None] * Rv.T
     aniso = np.flatnonzero(~iso)
+    Mt = sc[:, 0, None, None] * Rv.T  # [M, 3, 3]: every Gaussian's isotropic value (one broadcast, no mask)
     if len(aniso):
         R = quat_to_matrix(_rows(quats, ids[aniso]))
         Mt[aniso] = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * sc[aniso, :, None]

@@ -51,6 +51,7 @@ from trioman.runtime.render.projection import (
     project,
 )
 from trioman.runtime.render.tiles import bin_gaussians
+from trioman.runtime.render.timing import stage
 
 DEFAULT_TILE = 4  # tile side in pixels (module doc)
 DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array): blocks
@@ -239,14 +240,26 @@ def rasterize(
     if isinstance(chunk_elements, bool) or not isinstance(chunk_elements, int) or chunk_elements < 1:
         raise ValueError(f"chunk_elements: must be an int >= 1, got {chunk_elements!r}")
     bg = np.zeros(3, dtype=_F32) if background is None else background.astype(_F32)
-    p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, extent)
+    with stage("projection"):
+        p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, extent)
     if len(p.ids) == 0:
         zeros = np.zeros((height, width), dtype=_F32)
         return RenderOutput(np.broadcast_to(bg, (height, width, 3)).copy(), zeros, zeros.copy())
     s = tile_size
     ellipse = (p.chol, opacities[p.ids]) if extent == "opacity" else (None, None)
-    bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, *ellipse)
-    color, T_final = _composite(_pair_table(p, opacities, colors, bins, s), bins, s, chunk_elements)
+    with stage("tile binning"):
+        bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, *ellipse)
+    with stage("pair table"):
+        table = _pair_table(p, opacities, colors, bins, s)
+    with stage("compositing"):
+        color, T_final = _composite(table, bins, s, chunk_elements)
+    with stage("image"):
+        return _image(color, T_final, bins, s, width, height, bg)
+
+
+def _image(color: np.ndarray, T_final: np.ndarray, bins, s: int, width: int, height: int,
+           bg: np.ndarray) -> RenderOutput:
+    """Per-tile color [T, 4, s^2] and T_final [T, s^2] -> the RenderOutput of the image."""
     # tiles -> images: [T, C, s^2] -> C planes [H, W] (contiguous copies), then rgb interleaved once
     ty, tx = bins.tiles_y, bins.tiles_x
     planes = np.empty((4, ty, s, tx, s), dtype=_F32)
