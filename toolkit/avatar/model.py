@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.autograd.function import once_differentiable
 
 from trioman.runtime.render.timing import stage
 from trioman.runtime.skeleton import SkinnedMesh
@@ -97,6 +98,21 @@ class PoseMLP(nn.Module):
         return self.rest(torch.relu(feat_in + self.pose_in(pose_feat)))
 
 
+class _SparseProduct(torch.autograd.Function):
+    """S @ x for a constant sparse S [N, M] (CSR) and x [M, C]; the backward multiplies by the transpose given
+    with it (torch.sparse.mm would transpose S at every backward pass)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, S: torch.Tensor, St: torch.Tensor) -> torch.Tensor:
+        ctx.St = St
+        return torch.sparse.mm(S, x)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: torch.Tensor):
+        return torch.sparse.mm(ctx.St, grad.contiguous()), None, None
+
+
 class GaussianAvatar(nn.Module):
     def __init__(self, mesh: SkinnedMesh, cfg: AvatarConfig = AvatarConfig()):
         super().__init__()
@@ -159,19 +175,23 @@ class GaussianAvatar(nn.Module):
         out = F.linear(feats, torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers]))
         return list(out.split([m.out_features for m in layers], dim=1))
 
-    def _skin_matrix(self) -> torch.Tensor:
-        """The skinning weights as a sparse [N, J] matrix (CSR, repeated joints summed), rebuilt when the
-        skin buffers change (a loaded state dict)."""
-        key = (self.skin_indices._version, self.skin_weights._version, self.skin_weights.data_ptr())
-        if getattr(self, "_skin_key", None) != key:
-            n, k = self.skin_indices.shape
-            rows = torch.arange(n, device=self.skin_indices.device).repeat_interleave(k)
-            coo = torch.sparse_coo_tensor(torch.stack([rows, self.skin_indices.reshape(-1)]), self.skin_weights.reshape(-1),
-                                          (n, self.joints.shape[0]), check_invariants=True)
-            with warnings.catch_warnings():  # torch calls its CSR layout beta; sparse.mm on it is the fast LBS
+    def _sparse(self, name: str, sources: tuple[torch.Tensor, ...],
+                rows: Callable[[], tuple[torch.Tensor, torch.Tensor, int]]) -> tuple[torch.Tensor, torch.Tensor]:
+        """A sparse [N, cols] matrix and its transpose (CSR) kept under ``name``, built from ``rows()`` ->
+        (indices [N, K], weights [N, K], cols): row n holds weights[n] at columns indices[n] (repeated columns
+        summed). Rebuilt when the buffers in ``sources`` change (a loaded state dict)."""
+        key = tuple((t._version, t.data_ptr()) for t in sources)
+        cache = self.__dict__.setdefault("_sparse_cache", {})
+        if name not in cache or cache[name][0] != key:
+            indices, weights, cols = rows()
+            n, k = indices.shape
+            at = torch.stack([torch.arange(n, device=indices.device).repeat_interleave(k), indices.reshape(-1)])
+            coo = torch.sparse_coo_tensor(at, weights.reshape(-1), (n, cols), check_invariants=True)
+            with warnings.catch_warnings():  # torch calls its CSR layout beta; sparse.mm on it is the fast path
                 warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-                self._skin_csr, self._skin_key = coo.coalesce().to_sparse_csr(), key
-        return self._skin_csr
+                coo = coo.coalesce()
+                cache[name] = (key, (coo.to_sparse_csr(), coo.t().coalesce().to_sparse_csr()))
+        return cache[name][1]
 
     def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
         """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
@@ -193,7 +213,9 @@ class GaussianAvatar(nn.Module):
                 d_rgb = torch.zeros_like(rgb_logit)
         with stage("posing (LBS)"):
             A = skinning_transforms(self.parents, self.joints, pose[None], trans[None])[0]  # [J, 4, 4]
-            T = torch.sparse.mm(self._skin_matrix(), A[:, :3].reshape(-1, 12)).view(-1, 3, 4)  # [N, 3, 4]
+            skin = self._sparse("skin", (self.skin_indices, self.skin_weights),
+                                lambda: (self.skin_indices, self.skin_weights, self.joints.shape[0]))
+            T = _SparseProduct.apply(A[:, :3].reshape(-1, 12), *skin).view(-1, 3, 4)  # [N, 3, 4]
             if self.cfg.anisotropic:
                 q_local = geo[:, 3 + s :] + torch.tensor([1.0, 0.0, 0.0, 0.0], device=geo.device)
                 R_local = quat_to_matrix(q_local)
@@ -221,5 +243,8 @@ class GaussianAvatar(nn.Module):
             )
 
     def laplacian(self, values: torch.Tensor) -> torch.Tensor:
-        """values: [N, C] -> [N, C], each value minus the mean of its neighbours."""
-        return values - values[self.neighbors].mean(1)
+        """values: [N, C] -> [N, C], each value minus the mean of its neighbours (their sum: one sparse product)."""
+        n, k = self.neighbors.shape
+        adjacency = self._sparse("neighbours", (self.neighbors,),
+                                 lambda: (self.neighbors, torch.ones(n, k, device=self.neighbors.device), n))
+        return values - _SparseProduct.apply(values, *adjacency) / k

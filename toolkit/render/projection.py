@@ -109,6 +109,12 @@ def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, hei
 # projection
 
 
+def take_rows(x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+    """x[ids] for sorted unique ids [M] (torch.nonzero's), or x itself when they select every row: the same
+    values without a gather and its backward's scatter (when nothing is culled)."""
+    return x if ids.numel() == x.shape[0] else x[ids]
+
+
 def _project(means, quats, scales, opacities, viewmat, K, width: int, height: int,
              near_plane: float = 0.01, far_plane: float = 1e10, eps2d: float = EPS2D) -> _Projected:
     """Float64 projection of the visible Gaussians (see module doc). ``opacities`` None: extent 3.33,
@@ -123,9 +129,9 @@ def _project(means, quats, scales, opacities, viewmat, K, width: int, height: in
     if opacities is not None:  # the opacity cull compares float32 values, like gsplat
         keep &= opacities.detach().float() >= torch.tensor(ALPHA_THRESHOLD, dtype=torch.float32)
     ids = torch.nonzero(keep).squeeze(1)
-    mc = mc_all[ids]
-    R = quat_to_matrix(quats[ids].to(f64))
-    M = Rv @ (R * scales[ids].to(f64)[:, None, :])  # [M, 3, 3] camera-frame factor: Sigma_c = M M^T
+    mc = take_rows(mc_all, ids)
+    R = quat_to_matrix(take_rows(quats, ids).to(f64))
+    M = Rv @ (R * take_rows(scales, ids).to(f64)[:, None, :])  # [M, 3, 3] camera-frame factor: Sigma_c = M M^T
     tx, ty, tz = mc.unbind(-1)
     fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
     tan_fovx, tan_fovy = 0.5 * width / fx, 0.5 * height / fy
@@ -149,7 +155,7 @@ def _project(means, quats, scales, opacities, viewmat, K, width: int, height: in
         if opacities is None:
             extent = torch.full_like(tz, MAX_EXTENT)
         else:
-            o = opacities[ids].detach().to(f64)
+            o = take_rows(opacities, ids).detach().to(f64)
             extent = torch.sqrt(torch.clamp(2.0 * torch.log(o * 255.0), min=0.0)).clamp(max=MAX_EXTENT)
         radii = torch.stack([torch.ceil(extent * torch.sqrt(s00.detach())),
                              torch.ceil(extent * torch.sqrt(s11.detach()))], -1)
@@ -158,8 +164,8 @@ def _project(means, quats, scales, opacities, viewmat, K, width: int, height: in
         ok &= (m2[:, 0] + radii[:, 0] > 0) & (m2[:, 0] - radii[:, 0] < width)
         ok &= (m2[:, 1] + radii[:, 1] > 0) & (m2[:, 1] - radii[:, 1] < height)
         sel = torch.nonzero(ok).squeeze(1)
-    return _Projected(ids=ids[sel], means2d=mean2d[sel], chol=chol[sel], conics=conics[sel], depths=tz[sel],
-                      radii=radii[sel], z_all=z_all)
+    return _Projected(ids=take_rows(ids, sel), means2d=take_rows(mean2d, sel), chol=take_rows(chol, sel),
+                      conics=take_rows(conics, sel), depths=take_rows(tz, sel), radii=take_rows(radii, sel), z_all=z_all)
 
 
 def project_gaussians(

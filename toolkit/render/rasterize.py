@@ -56,6 +56,7 @@ from trioman.toolkit.render.projection import (
     TRANSMITTANCE_THRESHOLD,
     _project,
     check_inputs,
+    take_rows,
 )
 from trioman.toolkit.render.tiles import bin_gaussians
 
@@ -377,8 +378,8 @@ def rasterize(
         if p.ids.numel() == 0:
             return nothing_visible()
         f64 = torch.float64
-        gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(opacities[p.ids].to(f64))[:, None],
-                        colors[p.ids].to(f64), p.depths[:, None]], 1)  # [M, 10]
+        gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(take_rows(opacities, p.ids).to(f64))[:, None],
+                        take_rows(colors, p.ids).to(f64), p.depths[:, None]], 1)  # [M, 10]
     with stage("tile binning"):
         s = tile_side(p.radii) if tile_size is None else tile_size
         bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
