@@ -77,14 +77,15 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
 
 
 def plot_step_profile(rows: list[dict], path: Path) -> None:
-    """A stacked horizontal bar per (size, threads) row: seconds per stage of one step."""
+    """A stacked horizontal bar per (size, threads) row (labelled by its "label" when it has one): milliseconds
+    per stage of one step."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 1.2 + 0.6 * len(rows)), dpi=120)
-    labels = [f"{r['size']} px, {r['threads']} thread{'s' if r['threads'] > 1 else ''}" for r in rows]
+    labels = [r.get("label", f"{r['size']} px, {r['threads']} thread{'s' if r['threads'] > 1 else ''}") for r in rows]
     left = np.zeros(len(rows))
     names = list(rows[0]["stages"])
     colors = plt.get_cmap("tab10")(np.arange(len(names)) % 10)
