@@ -232,26 +232,38 @@ def project(
 
     # 2. conservative screen bound from the largest scale
     smax = _rows(scales, ids).max(1)
-    sel = np.flatnonzero(on_screen(mean2d, _bound_radii(smax, tz, jx, jy, fx, fy, np.linalg.norm(Rv, 2), extent)))
-    ids, tz, jx, jy, mean2d, extent = ids[sel], tz[sel], jx[sel], jy[sel], mean2d[sel], extent[sel]
-    # 3. covariances of the survivors; rows of N = J M: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]]
-    # M = R_view R S, stored transposed: Mt[:, k] = s_k R_view R[:, :, k] (one matrix product).
-    # Isotropic Gaussians (s_0 = s_1 = s_2 = s) have Sigma = s^2 I whatever R: M = s R_view, exactly
-    # the same N N^T, so their quaternions are never converted.
+    kept = on_screen(mean2d, _bound_radii(smax, tz, jx, jy, fx, fy, np.linalg.norm(Rv, 2), extent))
+    ids, tz, jx, jy, mean2d, extent = _where(kept, ids, tz, jx, jy, mean2d, extent)
+    # 3. covariances of the survivors; rows of N = J M: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]],
+    # M = R_view R S. Kept as rows over the Gaussians (Mr[r] [3, M] = row r of every M), so every
+    # product runs along M. Isotropic Gaussians (s_0 = s_1 = s_2 = s) have Sigma = s^2 I whatever R:
+    # M = s R_view, exactly the same N N^T, so their quaternions are never converted.
     sc = _rows(scales, ids)
     iso = (sc[:, 0] == sc[:, 1]) & (sc[:, 1] == sc[:, 2])
     aniso = np.flatnonzero(~iso)
-    Mt = sc[:, 0, None, None] * Rv.T  # [M, 3, 3]: every Gaussian's isotropic value (one broadcast, no mask)
+    Mr = Rv[:, :, None] * sc[:, 0]  # [3, 3, M]: every Gaussian's isotropic value
     if len(aniso):
-        R = quat_to_matrix(_rows(quats, ids[aniso]))
-        Mt[aniso] = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * sc[aniso, :, None]
-    n0 = (fx / tz)[:, None] * (Mt[:, :, 0] - jx[:, None] * Mt[:, :, 2])
-    n1 = (fy / tz)[:, None] * (Mt[:, :, 1] - jy[:, None] * Mt[:, :, 2])
-    p00, p11 = np.einsum("ij,ij->i", n0, n0), np.einsum("ij,ij->i", n1, n1)
-    s00, s11, s01 = p00 + EPS2D, p11 + EPS2D, np.einsum("ij,ij->i", n0, n1)
-    cross = np.cross(n0, n1)
-    det = EPS2D * EPS2D + EPS2D * (p00 + p11) + np.einsum("ij,ij->i", cross, cross)
+        R = quat_to_matrix(_rows(quats, ids[aniso]))  # M^T = R^T R_view^T, its rows scaled by s
+        Mt = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * sc[aniso, :, None]
+        Mr[:, :, aniso] = Mt.transpose(2, 1, 0)
+    n0 = (fx / tz) * (Mr[0] - jx * Mr[2])  # [3, M]
+    n1 = (fy / tz) * (Mr[1] - jy * Mr[2])
+    p00 = n0[0] * n0[0] + n0[1] * n0[1] + n0[2] * n0[2]
+    p11 = n1[0] * n1[0] + n1[1] * n1[1] + n1[2] * n1[2]
+    s00, s11, s01 = p00 + EPS2D, p11 + EPS2D, n0[0] * n1[0] + n0[1] * n1[1] + n0[2] * n1[2]
+    cross2 = (np.square(n0[1] * n1[2] - n0[2] * n1[1]) + np.square(n0[2] * n1[0] - n0[0] * n1[2])
+              + np.square(n0[0] * n1[1] - n0[1] * n1[0]))  # |n0 x n1|^2
+    det = EPS2D * EPS2D + EPS2D * (p00 + p11) + cross2
     chol = np.stack([np.sqrt(s11 / det), -s01 / np.sqrt(det * s11), 1.0 / np.sqrt(s11)], -1)
     radii = np.stack([np.ceil(extent * np.sqrt(s00)), np.ceil(extent * np.sqrt(s11))], -1)
     ok = (det > 0) & ((radii[:, 0] > 0) | (radii[:, 1] > 0)) & on_screen(mean2d, radii)
-    return Projected(ids[ok], mean2d[ok], chol[ok], tz[ok], radii[ok])
+    return Projected(*_where(ok, ids, mean2d, chol, tz, radii))
+
+
+def _where(keep: np.ndarray, *arrays: np.ndarray) -> list[np.ndarray]:
+    """The rows of ``arrays`` where ``keep`` [M] is True, or the arrays themselves when it is True everywhere
+    (no copies when nothing is culled)."""
+    if keep.all():
+        return list(arrays)
+    sel = np.flatnonzero(keep)
+    return [a[sel] for a in arrays]
