@@ -44,7 +44,7 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.data import load_frames
     from trioman.toolkit.train.guard import StepGuard
-    from trioman.toolkit.train.loop import _step, param_groups
+    from trioman.toolkit.train.loop import param_groups, train_step
 
     subject = load_subject(subject_dir)
     cfg = preset(preset_name)
@@ -61,11 +61,11 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
                 guard = StepGuard("bench", cfg.max_skipped)
                 with flush_denormals(), deterministic_kernels():
                     for k in range(warmup):
-                        _step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, k)
+                        train_step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, k)
                     with record_stages() as record:
                         t0 = time.perf_counter()
                         for k in range(steps):
-                            _step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, warmup + k)
+                            train_step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, warmup + k)
                         wall = time.perf_counter() - t0
                 stages = {name: record.get(name, 0.0) / steps for name in STAGES}
                 stages["other"] = wall / steps - sum(stages.values())

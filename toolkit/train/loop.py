@@ -192,7 +192,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
                 sample = augmenter.draw()
             else:
                 sample = frames.sample(int(rng.integers(len(frames))))
-            loss, p = _step(model, optimizer, sample, cfg, torch_gen, lpips, guard, step)
+            loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, guard, step)
             step += 1
             done_here += 1
             seconds += time.perf_counter() - t0
@@ -208,7 +208,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     return run
 
 
-def _step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict, cfg: TrainConfig,
+def train_step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict, cfg: TrainConfig,
           torch_gen: torch.Generator, lpips, guard: StepGuard, step: int) -> tuple[float, float]:
     """One optimisation step on one frame (``FrameSet.sample`` or a pseudo-GT pool frame).
 
