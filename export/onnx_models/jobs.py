@@ -112,7 +112,7 @@ class Job(abc.ABC):
     def parity(self, path: Path, max_frames: int | None = None) -> dict:
         """max |onnxruntime - torch| on random inputs (batch 1 and 3) and on the gate frames (real triplet
         frames when calibration data is given, else synthetic ones; the first ``max_frames`` of them)."""
-        frames = self.data.gate if max_frames is None else Frames(*(a[:max_frames] for a in self.data.gate))
+        frames = self.data.gate if max_frames is None else Frames(*(None if a is None else a[:max_frames] for a in self.data.gate))
         random, real = self.random_feeds(), self.real_feeds(frames)
         # torch first, then the session: only one of them holds a batch's activations at a time
         want = {id(f): self.torch_run(f) for f in random + real}
