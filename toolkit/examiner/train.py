@@ -1,7 +1,6 @@
-"""Train the Examiner from scratch: Adam on the BCE of sampled pairs, seeded, atomic checkpoints,
-optional model selection on validation data (the weights of the best validated step are kept), and a
-non-finite guard (a step with a NaN/Inf loss or gradient is skipped and counted; ``max_skipped``
-consecutive ones stop the run; non-finite weights are never saved)."""
+"""Train the Examiner from scratch: Adam on the BCE of seeded sampled pairs, with optional model selection on
+validation data (the weights of the best validated step are kept), in a ``ModelRun`` (toolkit/loops/model_run.py:
+resume, the non-finite guard, progress, atomic checkpoints)."""
 
 from __future__ import annotations
 
@@ -14,14 +13,13 @@ from typing import Any, Callable, Iterable, Iterator, NamedTuple
 
 import torch
 from torch import nn
-from tqdm import tqdm
 
-from trioman.toolkit.distributed import MIXED_PRECISION, barrier, check_world_size, current, data_parallel
+from trioman.toolkit.distributed import MIXED_PRECISION, data_parallel
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig, PatchLogits
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.toolkit.train.checkpoint import check_config, SELECTED, latest_checkpoint, load_checkpoint, save_atomic, save_checkpoint
-from trioman.toolkit.train.guard import StepGuard, check_weights
+from trioman.toolkit.loops.checkpoint import SELECTED, load_checkpoint, save_atomic
+from trioman.toolkit.loops.model_run import ModelRun
 
 
 @dataclass(frozen=True)
@@ -122,85 +120,56 @@ def train_examiner(
     on every rank, this rank's rows taken), DDP averages the gradients, rank 0 alone writes files and
     shows progress, and a checkpoint resumes only at the world size that wrote it.
     """
-    ranks = current()
     rng = torch.Generator().manual_seed(config.seed)  # the only randomness of the loop: pair sampling
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    step, saved, skipped = 0, None, 0
+    loop = ModelRun("examiner", "Examiner", model, optimizer, config, run, progress)
     history: dict[int, float] = {}
     best: tuple[int, dict[str, torch.Tensor]] | None = None  # (step, weights) of the best validation
-    found = latest_checkpoint(Path(run)) if run is not None else None
-    if found is not None:
-        state = load_checkpoint(found)
-        check_config(found, state["config"], model.config.to_dict(), "Examiner")
-        check_world_size(int(state.get("world_size", 1)), ranks, found)
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        rng.set_state(state["rng"])
-        step, saved, skipped = int(state["step"]), found, int(state.get("skipped", 0))
-        if validate is not None and "selection" in state:
-            sel = state["selection"]
+    if loop.resumed:
+        rng.set_state(loop.resumed["rng"])
+        if validate is not None and "selection" in loop.resumed:
+            sel = loop.resumed["selection"]
             history = {int(k): float(v) for k, v in sel["validation"].items()}
             best = (int(sel["step"]), sel["model"])
-    guard = StepGuard("examiner", config.max_skipped, skipped)
     hint = f"Lower the learning rate (lr={config.lr:g}) or check the data."
     model.train()
     net = data_parallel(_PairLogits(model))
     device = next(model.parameters()).device
-    losses: list[float] = []
     batches = _batches(data)
-    bar = tqdm(total=config.steps, initial=step, desc="examiner", unit="step",
-               disable=None if progress and ranks.main else True)
-    while step < config.steps:
+    while loop.running:
         batch = ExaminerBatch(*(x.to(device) for x in next(batches)))
-        pairs = sample_pairs(batch, rng, config.pairing, (ranks.rank, ranks.world_size))
+        pairs = sample_pairs(batch, rng, config.pairing, (loop.ranks.rank, loop.ranks.world_size))
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.mixed_precision == "bf16"):
             upper = net(pairs.candidate, pairs.reference)
         loss = examiner_loss(PatchLogits(upper.scores.float(), upper.weights.float()), pairs.target)
         optimizer.zero_grad(set_to_none=True)
-        if guard.finite_ok(loss, step, "loss", hint):
+        value = None
+        if loop.guard.finite_ok(loss, loop.step, "loss", hint):
             loss.backward()
-            if guard.grads_ok(model.parameters(), step, hint):
+            if loop.guard.grads_ok(model.parameters(), loop.step, hint):
                 optimizer.step()
-                losses.append(loss.item())
+                value = loss.item()
             else:
                 optimizer.zero_grad(set_to_none=True)
-        step += 1
-        bar.update(1)
-        bar.set_postfix(loss=f"{losses[-1]:.4f}" if losses else "-", **({"val": f"{history[max(history)]:.3f}"} if history else {}),
-                        **({"skipped": guard.skipped} if guard.skipped else {}))
-        boundary = step % config.checkpoint_every == 0 or step == config.steps
+        boundary = loop.advance(value, **({"val": f"{history[max(history)]:.3f}"} if history else {}))
         if boundary and (validate is not None or run is not None):  # before a validation or a save
-            check_weights(model, "examiner", step, saved)
+            loop.check_weights()
         if validate is not None and boundary:
-            history[step] = _validate(model, validate)
-            if best is None or history[step] > history[best[0]]:
-                best = (step, {k: v.detach().clone() for k, v in model.state_dict().items()})
-        if run is not None and boundary and ranks.main:
-            state = {
-                "step": step,
-                "model": model.state_dict(),
-                "config": model.config.to_dict(),
-                "train": config.to_dict(),
-                "optimizer": optimizer.state_dict(),
-                "rng": rng.get_state(),
-                "skipped": guard.skipped,
-                "world_size": ranks.world_size,
-                **({"selection": {"validation": {str(k): v for k, v in history.items()}, "step": best[0], "model": best[1]}}
-                   if best is not None else {}),
-            }
-            saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
-    bar.close()
-    model.eval()
-    if validate is None:
-        barrier()
-        return ExaminerTrainResult(losses, step, saved, skipped=guard.skipped)
+            history[loop.step] = _validate(model, validate)
+            if best is None or history[loop.step] > history[best[0]]:
+                best = (loop.step, {k: v.detach().clone() for k, v in model.state_dict().items()})
+        if run is not None and boundary:
+            selection = {} if best is None else {
+                "selection": {"validation": {str(k): v for k, v in history.items()}, "step": best[0], "model": best[1]}}
+            loop.save({**loop.state(rng=rng.get_state()), **selection})
     selected = None
     if best is not None:
         model.load_state_dict(best[1])
-        if run is not None and ranks.main:
+        if run is not None and loop.ranks.main:
             selected = _save_selected(Path(run), best[0], best[1], model, config, history[best[0]])
-    barrier()
-    return ExaminerTrainResult(losses, step, saved, best[0] if best else None, history, selected, guard.skipped)
+    loop.finish()
+    return ExaminerTrainResult(loop.losses, loop.step, loop.saved, best[0] if best else None,
+                               None if validate is None else history, selected, loop.guard.skipped)
 
 
 def _validate(model: Examiner, validate: Callable[[Examiner], float]) -> float:

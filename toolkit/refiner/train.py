@@ -1,6 +1,5 @@
-"""Train the Refiner from scratch: Adam on ``refiner_loss``, atomic resumable checkpoints, and a
-non-finite guard (a step with a NaN/Inf loss or gradient is skipped and counted; ``max_skipped``
-consecutive ones stop the run; non-finite weights are never saved).
+"""Train the Refiner from scratch: Adam on ``refiner_loss``, in a ``ModelRun`` (toolkit/loops/model_run.py:
+resume, the non-finite guard, progress, atomic checkpoints).
 
 Determinism: the loop draws no random numbers. The batch of step s is ``batches(s)`` (so a resumed
 run sees exactly the batches it would have seen), and the initial weights come from
@@ -17,15 +16,15 @@ from typing import Any, Callable, NamedTuple
 
 import torch
 from torch import nn
-from tqdm import tqdm
 
-from trioman.toolkit.distributed import MIXED_PRECISION, barrier, check_world_size, current, data_parallel
+from trioman.toolkit.distributed import MIXED_PRECISION, data_parallel
+from trioman.toolkit.loops.checkpoint import load_checkpoint
+from trioman.toolkit.loops.guard import StepGuard
+from trioman.toolkit.loops.model_run import ModelRun
 from trioman.toolkit.refiner.backbones import create_refiner
 from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inputs, refiner_targets
 from trioman.toolkit.refiner.config import RefinerConfig
 from trioman.toolkit.refiner.loss import RefinerLossWeights, refiner_loss
-from trioman.toolkit.train.checkpoint import check_config, latest_checkpoint, load_checkpoint, save_checkpoint
-from trioman.toolkit.train.guard import StepGuard, check_weights
 
 
 @dataclass(frozen=True)
@@ -133,52 +132,22 @@ def train_refiner(
     the gradients, rank 0 alone writes checkpoints and shows progress, and a checkpoint resumes only
     at the world size that wrote it.
     """
-    ranks = current()
     if config.gradient_checkpointing:
         if not hasattr(model, "enable_gradient_checkpointing"):
             raise ValueError(f"gradient_checkpointing: the {model.config.backbone!r} backbone does not support it")
         model.enable_gradient_checkpointing()
     optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.lr)
-    step, saved, skipped = 0, None, 0
-    found = latest_checkpoint(Path(run)) if run is not None else None
-    if found is not None:
-        state = load_checkpoint(found)
-        check_config(found, state["config"], model.config.to_dict(), "Refiner")
-        check_world_size(int(state.get("world_size", 1)), ranks, found)
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        step, saved, skipped = int(state["step"]), found, int(state.get("skipped", 0))
-    guard = StepGuard("refiner", config.max_skipped, skipped)
+    loop = ModelRun("refiner", "Refiner", model, optimizer, config, run, progress)
     model.train()
     net = data_parallel(model)
-    losses: list[float] = []
-    bar = tqdm(total=config.steps, initial=step, desc="refiner", unit="step", disable=None if progress and ranks.main else True)
-    while step < config.steps:
-        terms = train_step(model, optimizer, batches(step), config.weights, lpips, config.grad_clip, guard, step,
-                           config.mixed_precision, net)
-        if terms is not None:
-            losses.append(terms["total"])
-        step += 1
-        bar.update(1)
-        bar.set_postfix(loss=f"{losses[-1]:.4f}" if losses else "-", **({"skipped": guard.skipped} if guard.skipped else {}))
-        if run is not None and (step % config.checkpoint_every == 0 or step == config.steps):
-            check_weights(model, "refiner", step, saved)
-            if not ranks.main:
-                continue
-            state = {
-                "step": step,
-                "model": model.state_dict(),
-                "config": model.config.to_dict(),
-                "train": config.to_dict(),
-                "optimizer": optimizer.state_dict(),
-                "skipped": guard.skipped,
-                "world_size": ranks.world_size,
-            }
-            saved = save_checkpoint(Path(run), step, state, keep=config.keep_checkpoints)
-    bar.close()
-    model.eval()
-    barrier()
-    return RefinerTrainResult(losses, step, saved, guard.skipped)
+    while loop.running:
+        terms = train_step(model, optimizer, batches(loop.step), config.weights, lpips, config.grad_clip, loop.guard,
+                           loop.step, config.mixed_precision, net)
+        if loop.advance(None if terms is None else terms["total"]) and run is not None:
+            loop.check_weights()
+            loop.save(loop.state())
+    loop.finish()
+    return RefinerTrainResult(loop.losses, loop.step, loop.saved, loop.guard.skipped)
 
 
 def load_refiner(path: str | os.PathLike, exportable: bool = False) -> nn.Module:

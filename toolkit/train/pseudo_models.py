@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import torch
 
-from trioman.toolkit.train.checkpoint import SELECTED, latest_checkpoint
+from trioman.toolkit.loops.checkpoint import SELECTED, latest_checkpoint
 
 
 class PseudoExaminer(Protocol):

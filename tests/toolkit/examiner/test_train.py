@@ -7,7 +7,7 @@ import torch
 
 from tests.toolkit.examiner.helpers import TINY, synthetic_batch
 from trioman.toolkit.examiner import ExaminerTrainConfig, auroc, create_examiner, load_examiner, train_examiner
-from trioman.toolkit.train.checkpoint import list_checkpoints
+from trioman.toolkit.loops.checkpoint import list_checkpoints
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,7 @@ def test_bad_train_config_and_empty_data():
 def test_validation_keeps_the_first_best_step_and_survives_a_resume(tmp_path):
     """validate runs every checkpoint_every steps; the model ends with the weights of the first step
     of the highest value (run/selected.pt holds them), and a resumed run selects the same step."""
-    from trioman.toolkit.train.checkpoint import load_checkpoint, model_checkpoint
+    from trioman.toolkit.loops.checkpoint import load_checkpoint, model_checkpoint
 
     g = torch.Generator().manual_seed(5)
     data = [synthetic_batch(4, TINY.img_size, g) for _ in range(2)]

@@ -20,7 +20,7 @@ from trioman.toolkit.refiner import (
     refiner_targets,
     train_refiner,
 )
-from trioman.toolkit.train.checkpoint import latest_checkpoint
+from trioman.toolkit.loops.checkpoint import latest_checkpoint
 
 
 def test_loss_is_zero_on_targets_and_names_its_terms():

@@ -1,11 +1,11 @@
-"""The non-finite guard of the training loops (toolkit.train.guard)."""
+"""The non-finite guard of the training loops (toolkit.loops.guard)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from trioman.toolkit.train.guard import NonFiniteError, StepGuard, check_weights, grads_finite, weights_finite
+from trioman.toolkit.loops.guard import NonFiniteError, StepGuard, check_weights, grads_finite, weights_finite
 
 
 def test_guard_skips_and_counts_and_stops_after_consecutive_failures():
