@@ -75,7 +75,7 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
                               refiner_size="compact", baseline_frames="all")
     r = bench_models(args)
     assert r["heldout_test_frames"] == 3
-    assert set(r["metrics"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)"}
+    assert set(r["metrics"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)", "refined (warp)", "refined (warp+geo)"}
     assert all(np.isfinite(v) for m in r["metrics"].values() for v in m.values())
     assert 0 <= r["examiner_auroc_real_vs_coarse"] <= 1 and 0 <= r["examiner_auroc_real_vs_coarse_nearby"] <= 1 and (tmp_path / "bench" / "examiner_scores.png").is_file()
     assert "Examiner AUROC" in models_markdown(r) and "the paper's pairs" in models_markdown(r)
