@@ -46,7 +46,8 @@ def inputs(tiny_run, tmp_path_factory):  # noqa: F811
     assert main(["export", "avatar", str(tiny_run), "--out", str(avatar)]) == 0
     subject = Path(load_avatar(avatar).meta["source"]["subject"])
     models = {}
-    for name, conditions, size in (("refiner", "tex+geo", 32), ("refiner_none", "none", 32), ("refiner16", "tex+geo", 16)):
+    for name, conditions, size in (("refiner", "tex+geo", 32), ("refiner_none", "none", 32), ("refiner16", "tex+geo", 16),
+                                   ("refiner_warp", "warp+geo", 32)):
         model = open_zero_inits(create_refiner(tiny_config(conditions=conditions)), std=0.2)
         export_refiner_onnx(model, root / f"{name}.onnx", size=size, gate_frames=2)
         models[name] = root / f"{name}.onnx"
@@ -205,6 +206,17 @@ def test_a_refiner_without_conditions_gets_neither_reference_nor_normal_map(inpu
     r = augment(inputs.subject, inputs.avatar, inputs.refiner_none, tmp_path / "n", limit=1, progress=False)
     assert r["settings"]["refiner"]["conditions"] == "none" and r["timing"]["ms_per_source_frame"]["normal"] < 1.0
     assert load_subject(tmp_path / "n").num_frames == 2
+
+
+def test_a_warp_refiner_refines_the_aligned_reference(inputs, tmp_path):
+    """A warp+geo Refiner ONNX in the runtime: the aligned reference is built for it (even with the render's alpha as
+    the mask), and its frames differ from the same draws refined by a tex+geo Refiner."""
+    r = augment(inputs.subject, inputs.avatar, inputs.refiner_warp, tmp_path / "w", limit=1, progress=False, mask="alpha")
+    assert r["settings"]["refiner"]["conditions"] == "warp+geo" and r["timing"]["ms_per_source_frame"]["align"] > 0
+    assert all(0 < c["body_coverage"] <= 1 for rec in records(tmp_path / "w") for c in rec["candidates"])
+    augment(inputs.subject, inputs.avatar, inputs.refiner, tmp_path / "t", limit=1, progress=False, mask="alpha")
+    warp, tex = load_subject(tmp_path / "w"), load_subject(tmp_path / "t")
+    assert warp.num_frames == tex.num_frames == 2 and not np.array_equal(warp.image(0), tex.image(0))
 
 
 def test_same_seed_same_files_and_resume_after_an_interruption(inputs, straight, tmp_path, monkeypatch):
