@@ -106,7 +106,7 @@ def _baseline(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) 
 
 def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, log: StageLog,
                    progress: bool) -> dict:
-    """Triplets of the trained avatar -> Refiner (tex+geo) and Examiner on the subject's training frames
+    """Triplets of the trained avatar -> Refiner (warp+geo) and Examiner on the subject's training frames
     -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
     import shutil
 
@@ -120,7 +120,7 @@ def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, 
     shutil.rmtree(out / "models", ignore_errors=True)  # fresh models, like the fresh avatar run
     steps = cfg.model_steps
     with log.stage("refiner"):
-        _, refiner = fit_refiner([triplets], out / "models" / "refiner", "tex+geo", FitConfig(steps=steps, split="train"))
+        _, refiner = fit_refiner([triplets], out / "models" / "refiner", "warp+geo", FitConfig(steps=steps, split="train"))
     with log.stage("examiner"):
         _, examiner = fit_examiner([triplets], out / "models" / "examiner",
                                    fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(cfg.size, 128),

@@ -11,9 +11,10 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corpus", required=True, help="corpus folder (trioman synth-corpus)")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, fit.json)")
-    parser.add_argument("--conditions", choices=("none", "tex", "tex+geo", "warp", "warp+geo"), default="tex+geo",
-                        help="the paper's none / tex / tex+geo, or warp / warp+geo: refine the geometry-aligned "
-                             "reference (triplets built with aligned references; default tex+geo)")
+    parser.add_argument("--conditions", choices=("none", "tex", "tex+geo", "warp", "warp+geo"), default="warp+geo",
+                        help="warp / warp+geo: refine the geometry-aligned reference (the default, warp+geo, measured "
+                             "best: docs/findings.md, 'Augmentation'); the paper's none / tex / tex+geo: a real frame "
+                             "near the view as reference")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--batch", type=int, default=4,
                         help="samples per process and step (default 4; the global batch is this times the process count)")
