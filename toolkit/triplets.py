@@ -141,6 +141,61 @@ def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> P
     return out
 
 
+def build_draw_triplets(run: str | Path, out: str | Path, draws: int = 2, seed: int = 0, progress: bool = True) -> Path:
+    """Triplets at Generator draws of a synthetic subject's training frames (``draws`` per frame): what a Refiner
+    meets during augmentation. ``gt`` is the truth at the draw (the subject's own renderer, over its background),
+    ``coarse`` the avatar's render there, ``aligned`` the draw's aligned reference from its own source frame and
+    the nearest-direction training frames (as the shared augmentation step builds it), ``normal`` the body
+    normal map; every row is split "train" and ``frame`` / ``aligned_from`` name the source frame. Same format
+    (version 2) as ``build_triplets``."""
+    import torch
+    from tqdm import tqdm
+
+    from trioman.runtime.aligned import Aligner, SourceViews
+    from trioman.runtime.generator import sample
+    from trioman.toolkit.evaluate import load_run
+    from trioman.toolkit.synth.subject import TruthRenderer
+    from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
+
+    model, subject, _, step = load_run(run)
+    truth = TruthRenderer(subject)
+    bg, H, W = subject.background.astype(np.float32), subject.height, subject.width
+    train = subject.indices("train")
+    views = SourceViews(lambda p: subject.image(int(train[p])) * subject.mask(int(train[p]))[..., None],
+                        lambda p: subject.mask(int(train[p])), np.asarray(subject.poses)[train], np.asarray(subject.trans)[train],
+                        np.asarray(subject.viewmat)[train], np.asarray(subject.K)[train], W, H)
+    aligner, gen = Aligner(subject.body, views), AugmentConfig().generator()
+    rng = np.random.default_rng(seed)
+    n = len(train) * draws
+    arrays = {k: np.empty((n, H, W, 3), np.uint8) for k in ("gt", "coarse", "normal", "aligned")}
+    arrays.update(mask=np.empty((n, H, W), np.uint8), valid=np.empty((n, H, W), np.uint8))
+    frame, yaw_pose, yaw_view = np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 4, 4))
+    with torch.no_grad():
+        for r in tqdm(range(n), desc="draw triplets", unit="draw", disable=None if progress else True):
+            p = r // draws
+            i = int(train[p])
+            c = sample(subject.body.skeleton, np.asarray(subject.poses[i]), np.asarray(subject.trans[i]),
+                       np.asarray(subject.viewmat[i]), rng, 1, gen)[0]
+            K = np.asarray(subject.K[i], np.float64)
+            coarse, _ = render_candidate(model, c, torch.from_numpy(K.astype(np.float32)), W, H, bg)
+            rgb, mask = truth.at_draw(i, c, K)
+            a = aligner.align(p, c.pose, c.trans, c.viewmat, K, coarse)
+            arrays["gt"][r], arrays["mask"][r] = _u8(rgb + (1.0 - mask)[..., None] * bg), _u8(mask)
+            arrays["coarse"][r], arrays["aligned"][r], arrays["valid"][r] = _u8(coarse), _u8(a.rgb), a.valid.astype(np.uint8) * 255
+            arrays["normal"][r] = _u8(body_normal_map(subject.body, c.pose, c.trans, c.viewmat, K, W, H).rgb)
+            frame[r], yaw_pose[r], yaw_view[r] = i, c.pose[0], c.viewmat
+    meta = {"version": TRIPLETS_VERSION, "subject": str(subject.root), "run": str(run), "step": step, "width": W,
+            "height": H, "background": bg.tolist(), "draws": draws, "seed": seed}
+    arrays.update(meta=np.array(json.dumps(meta)), frame=frame, aligned_from=frame.copy(),
+                  split=np.full(n, "train"), sequence=np.asarray(subject.sequence)[frame].astype(np.str_),
+                  view_yaw=view_yaw(yaw_pose, yaw_view))
+    out = Path(out)
+    with atomic_path(out, suffix=".npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+    return out
+
+
 class Tuples(NamedTuple):
     """Float32 NHWC images in [0, 1]: the data of one batch."""
 

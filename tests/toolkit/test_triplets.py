@@ -126,3 +126,32 @@ def test_triplets_without_aligned_references_still_load(triplet_file, tmp_path):
     assert len(refiner_inputs(batch, "tex+geo")) == 3 and isinstance(batch.coarse, torch.Tensor)
     with pytest.raises(ValueError, match="aligned: required with conditions='warp'"):
         refiner_inputs(batch, "warp")
+
+
+def test_draw_triplets_hold_the_truth_at_generator_draws(triplet_file, tmp_path):
+    """Triplets at Generator draws: the truth there (the subject's own renderer), the avatar's render, the aligned
+    reference from the draw's own source frame; every row a training row naming its source frame."""
+    from trioman.runtime.formats.common import load_npz
+    from trioman.toolkit.triplets import build_draw_triplets
+
+    path, subject = triplet_file
+    run = path.parent / "run"
+    out = build_draw_triplets(run, tmp_path / "d.npz", draws=2, seed=1, progress=False)
+    a = load_npz(out)
+    train = subject.indices("train")
+    assert len(a["gt"]) == 2 * len(train) and set(a["split"]) == {"train"} and triplets_version(out) == TRIPLETS_VERSION
+    np.testing.assert_array_equal(a["frame"], np.repeat(train, 2))
+    np.testing.assert_array_equal(a["aligned_from"], a["frame"])
+    valid, body = a["valid"] > 127, a["mask"] > 127
+    assert valid.mean() > 0.02 and np.all(a["aligned"][~valid] == 0)
+    gt = a["gt"].astype(np.float64)
+    # the draw's own frame carried to it lies closer to the truth than a 3-step avatar's render
+    assert np.abs(a["aligned"].astype(np.float64) - gt)[valid].mean() < np.abs(a["coarse"].astype(np.float64) - gt)[valid].mean()
+    assert not np.array_equal(a["gt"][0], a["gt"][1])  # two draws of one frame differ
+    assert body.any() and TripletSet.load([out]).aligned is not None
+    from trioman.cli import main
+
+    assert main(["triplets", str(run), "--out", str(tmp_path / "e.npz"), "--draws", "2", "--seed", "1", "--quiet"]) == 0
+    np.testing.assert_array_equal(load_npz(tmp_path / "e.npz")["gt"], a["gt"])  # seeded
+    assert main(["triplets", str(run), "--out", str(tmp_path / "f.npz"), "--draws", "0"]) == 1
+    assert not (tmp_path / "f.npz").exists()
