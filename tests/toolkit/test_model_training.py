@@ -60,6 +60,11 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
                  "--crop", "16", "--conditions", "tex"]) == 0
     info = json.loads((run / "fit.json").read_text())
     assert info["conditions"] == "tex" and info["config"]["image_size"] == 16 and (run / "checkpoints").is_dir()
+    files = [str(corpus / "triplets" / "all" / f"{s}.npz") for s in ("s00", "s01")]  # triplet files, the default conditions
+    assert main(["train-refiner", "--triplets", *files, "--out", str(tmp_path / "reft"), "--steps", "2", "--batch", "2",
+                 "--crop", "16"]) == 0
+    info = json.loads((tmp_path / "reft" / "fit.json").read_text())
+    assert info["conditions"] == "warp+geo" and info["config"]["image_size"] == 16
     assert main(["train-examiner", "--corpus", str(corpus), "--out", str(tmp_path / "ex"), "--steps", "2", "--batch", "2"]) == 0
     info = json.loads((tmp_path / "ex" / "fit.json").read_text())
     assert info["fit"]["pairing"] == "contrast" and info["fit"]["validation_subjects"] == 1 and info["selected_step"] == 2
@@ -175,7 +180,7 @@ def test_a_resume_with_another_crop_names_the_fields_and_the_command(corpus, tmp
     assert f"`trioman train-refiner --corpus {corpus} --out {run} --conditions tex --steps 4 --batch 2 --crop 16`" in err
     assert main(argv) == 1  # two fields differ: both named, nothing else
     err = _one_line_error(capsys)
-    assert "(image_size: 16 -> 32, conditions: 'tex' -> 'tex+geo')" in err and "latent_channels" not in err
+    assert "(image_size: 16 -> 32, conditions: 'tex' -> 'warp+geo')" in err and "latent_channels" not in err
 
     run = tmp_path / "exa"  # an Examiner run started with --model examiner_tiny
     save_checkpoint(run, 2, {"step": 2, "model": {}, "config": examiner_config("examiner_tiny", img_size=S).to_dict()})

@@ -19,6 +19,8 @@ def command_line(name: str, add_arguments, values: dict) -> str:
         elif isinstance(action, argparse._StoreTrueAction):
             words += [action.option_strings[-1]] if value else []
         elif action.required or value != action.default:
-            if value is not None:
+            if isinstance(value, list):
+                words += [action.option_strings[-1], *map(str, value)]
+            elif value is not None:
                 words += [action.option_strings[-1], str(value)]
     return shlex.join(words)

@@ -9,7 +9,10 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--corpus", required=True, help="corpus folder (trioman synth-corpus)")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--corpus", help="corpus folder (trioman synth-corpus): its training subjects' triplets")
+    source.add_argument("--triplets", nargs="+", metavar="FILE",
+                        help="triplet files instead (trioman triplets, e.g. --draws N ones of synthetic subjects)")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, fit.json)")
     parser.add_argument("--conditions", choices=("none", "tex", "tex+geo", "warp", "warp+geo"), default="warp+geo",
                         help="warp / warp+geo: refine the geometry-aligned reference (the default, warp+geo, measured "
@@ -41,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     with process_group(args.device) as ranks:
         lpips = load_lpips()  # a named folder without the weights is an error before any work
         try:
-            _, info = fit_refiner(args.corpus, args.out, args.conditions, fit, args.size, lpips=lpips,
+            _, info = fit_refiner(args.corpus or args.triplets, args.out, args.conditions, fit, args.size, lpips=lpips,
                                   backbone=args.backbone, pretrained=args.pretrained, device=args.device,
                                   mixed_precision=args.mixed_precision, gradient_checkpointing=args.gradient_checkpointing)
         except ConfigMismatch as err:
