@@ -58,7 +58,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     for v in ("baseline", "ceiling", "aligned"):
         assert f"| {LABELS[v]} | {mean[v]['psnr']:.2f} |" in md, v
     assert all(np.isfinite(mean[v]["psnr"]) for v in mean)
-    for text in ("Table 1", "Table 2", "+ Generator & Refiner & Examiner", "equal steps (control)", "paper 00028",
+    for text in ("Table 1", "Table 2", "+ Generator & Refiner (aligned ref.&geo.) & Examiner", "equal steps (control)", "paper 00028",
                  "Ceiling (the truth at every draw) over the equal-steps control", "share of the ceiling's gain",
                  "Do the Refiners use their conditions", "| refined, true reference and normal map |", "ms per step",
                  "detail only (lever)", "Pseudo-GT against the truth: s02"):
