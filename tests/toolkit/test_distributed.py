@@ -125,7 +125,7 @@ def test_torchrun_train_refiner_rank_zero_writes(corpus, tmp_path):
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert done.returncode == 0, done.stderr[-2000:]
     said = int(find_lpips_weights() is None)  # rank 0 alone says once that LPIPS is not computed, when it is not
-    assert done.stdout.count("(tex+geo, 2 steps") == 1 and done.stdout.count(NOT_FOUND_MESSAGE) == said
+    assert done.stdout.count("(warp+geo, 2 steps") == 1 and done.stdout.count(NOT_FOUND_MESSAGE) == said
     assert main(["train-refiner", "--corpus", str(corpus), "--out", str(tmp_path / "one"), "--steps", "2", "--batch",
                  str(2 * BATCH), "--crop", "16"]) == 0
     one, two = weights(tmp_path / "one"), weights(run2)
