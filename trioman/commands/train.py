@@ -19,8 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     aug = parser.add_argument_group("online augmentation (Generator -> Refiner -> Examiner during training)")
     aug.add_argument("--augment", choices=("coarse", "aligned", "refined", "examined", "truth"), default=None,
                      nargs="?", const="aligned",
-                     help="pseudo-GT frames made during training (--augment alone: aligned, the kind that measured "
-                          "best, docs/augmentation.md): the avatar's own renders at Generator poses and "
+                     help="pseudo-GT frames made during training (--augment alone: aligned, the best kind without a "
+                          "model; refined by a warp+geo --refiner measured better, docs/augmentation.md): the avatar's own renders at Generator poses and "
                           "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
                           "refined by --refiner (refined), the best of --per-frame refined candidates by --examiner "
                           "(examined), or the subject's own renderer (truth: synthetic subjects only, the ceiling)")
