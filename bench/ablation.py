@@ -394,10 +394,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     rng = np.random.default_rng(seed)
     W, H, bg = subj.width, subj.height, subj.background.astype(np.float32)
     train = subj.indices("train")
-    views = SourceViews(lambda p: subj.image(int(train[p])) * subj.mask(int(train[p]))[..., None],
-                        lambda p: subj.mask(int(train[p])), subj.poses[train], subj.trans[train], subj.viewmat[train],
-                        subj.K[train], W, H)
-    aligner = Aligner(subj.body, views)
+    aligner = Aligner(subj.body, SourceViews.of_subject(subj, train))
     picked = []
     for p in rng.choice(len(train), size=draws):
         i = int(train[p])

@@ -85,6 +85,19 @@ class SourceViews:
     def __len__(self) -> int:
         return len(self.poses)
 
+    @classmethod
+    def of_subject(cls, subject, indices: np.ndarray) -> "SourceViews":
+        """A subject's frames ``indices`` [F] (runtime.formats.Subject) as source views, position p = indices[p]."""
+        indices = np.asarray(indices)
+
+        def image(p: int) -> np.ndarray:
+            i = int(indices[p])
+            return subject.image(i) * subject.mask(i)[..., None]
+
+        return cls(image, lambda p: subject.mask(int(indices[p])), np.asarray(subject.poses)[indices],
+                   np.asarray(subject.trans)[indices], np.asarray(subject.viewmat)[indices], np.asarray(subject.K)[indices],
+                   subject.width, subject.height)
+
 
 class _Posed(NamedTuple):
     vertices: np.ndarray  # [V, 3] world

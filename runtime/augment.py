@@ -379,14 +379,7 @@ def _aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig, refiner: Any)
     """The aligned reference over the subject's frames ``indices`` (when the pseudo-GT needs it)."""
     if not needs_aligner(pseudo, None if refiner is None else refiner.conditions):
         return None
-
-    def image(p: int) -> np.ndarray:
-        i = int(indices[p])
-        return subj.image(i) * subj.mask(i)[..., None]
-
-    views = SourceViews(image, lambda p: subj.mask(int(indices[p])), subj.poses[indices], subj.trans[indices],
-                        subj.viewmat[indices], subj.K[indices], subj.width, subj.height)
-    return Aligner(subj.body, views)
+    return Aligner(subj.body, SourceViews.of_subject(subj, indices))
 
 
 def _run(out: Path, subj: Any, selection: list[int], step: _Step, earlier: list[Path], had_output: bool, resume: bool,

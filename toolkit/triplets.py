@@ -89,10 +89,7 @@ def aligned_references(subject, coarse: np.ndarray, seed: int = 0,
     if len(train) < 2:
         raise ValueError(f"{subject.root}: split: {len(train)} training frame(s); aligned references need at least 2")
     pos = {int(f): p for p, f in enumerate(train)}
-    views = SourceViews(lambda p: subject.image(int(train[p])) * subject.mask(int(train[p]))[..., None],
-                        lambda p: subject.mask(int(train[p])), np.asarray(subject.poses)[train], np.asarray(subject.trans)[train],
-                        np.asarray(subject.viewmat)[train], np.asarray(subject.K)[train], subject.width, subject.height)
-    aligner = Aligner(subject.body, views)
+    aligner = Aligner(subject.body, SourceViews.of_subject(subject, train))
     n, H, W = len(coarse), subject.height, subject.width
     aligned, valid = np.zeros((n, H, W, 3), np.uint8), np.zeros((n, H, W), np.uint8)
     source = np.empty(n, np.int32)
@@ -161,10 +158,7 @@ def build_draw_triplets(run: str | Path, out: str | Path, draws: int = 2, seed: 
     truth = TruthRenderer(subject)
     bg, H, W = subject.background.astype(np.float32), subject.height, subject.width
     train = subject.indices("train")
-    views = SourceViews(lambda p: subject.image(int(train[p])) * subject.mask(int(train[p]))[..., None],
-                        lambda p: subject.mask(int(train[p])), np.asarray(subject.poses)[train], np.asarray(subject.trans)[train],
-                        np.asarray(subject.viewmat)[train], np.asarray(subject.K)[train], W, H)
-    aligner, gen = Aligner(subject.body, views), AugmentConfig().generator()
+    aligner, gen = Aligner(subject.body, SourceViews.of_subject(subject, train)), AugmentConfig().generator()
     rng = np.random.default_rng(seed)
     n = len(train) * draws
     arrays = {k: np.empty((n, H, W, 3), np.uint8) for k in ("gt", "coarse", "normal", "aligned")}
