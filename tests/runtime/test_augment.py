@@ -13,7 +13,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("onnx")
 
-import trioman.runtime.augment as augment_mod  # noqa: E402
+import trioman.runtime.augment.step as augment_step  # noqa: E402 (the per-frame step, whose write_png is patched)
 from tests.conftest import run_python  # noqa: E402
 from tests.export.test_avatar import tiny_run, trained_like  # noqa: E402,F401 (fixture)
 from trioman.cli import main  # noqa: E402
@@ -227,7 +227,7 @@ def test_same_seed_same_files_and_resume_after_an_interruption(inputs, straight,
 
     # Interrupt while writing the third frame: its image is written, its mask and record are not.
     calls = []
-    real_write = augment_mod.write_png
+    real_write = augment_step.write_png
 
     def flaky(path, img):
         calls.append(path)
@@ -235,11 +235,11 @@ def test_same_seed_same_files_and_resume_after_an_interruption(inputs, straight,
             raise KeyboardInterrupt
         real_write(path, img)
 
-    monkeypatch.setattr(augment_mod, "write_png", flaky)
+    monkeypatch.setattr(augment_step, "write_png", flaky)
     out = tmp_path / "broken"
     with pytest.raises(KeyboardInterrupt):
         run(inputs, out)
-    monkeypatch.setattr(augment_mod, "write_png", real_write)
+    monkeypatch.setattr(augment_step, "write_png", real_write)
     assert len(records(out)) == 2 and len(list((out / "images").iterdir())) == 3 and len(list((out / "masks").iterdir())) == 2
     assert not (out / "subject.json").exists()
     with pytest.raises(FormatError):
@@ -256,7 +256,7 @@ def test_refuses_a_non_empty_out_and_a_resume_with_other_settings(inputs, tmp_pa
     stray = tmp_path / "stray"
     stray.mkdir()
     (stray / "notes.txt").write_text("mine")
-    with pytest.raises(FileExistsError, match=r"not empty \(pass --resume .* --overwrite"):
+    with pytest.raises(FileExistsError, match=r"^out: .* not empty \(pass `resume` .* `overwrite`"):
         run(inputs, stray, limit=1)
     for flag in ("resume", "overwrite"):
         with pytest.raises(FileExistsError, match="holds no augment.json"):
@@ -267,9 +267,9 @@ def test_refuses_a_non_empty_out_and_a_resume_with_other_settings(inputs, tmp_pa
     run(inputs, out, limit=1)
     with pytest.raises(FileExistsError, match="not empty"):
         run(inputs, out, limit=1)
-    with pytest.raises(ValueError, match=r"--resume: seed differs from the run in .* \(was 7, now 9\)"):
+    with pytest.raises(ValueError, match=r"^resume: seed differs from the run in .* \(was 7, now 9\)"):
         run(inputs, out, limit=1, seed=9, resume=True)
-    with pytest.raises(ValueError, match="--resume: per_frame differs"):
+    with pytest.raises(ValueError, match="^resume: per_frame differs"):
         run(inputs, out, limit=1, per_frame=3, resume=True)
     r = run(inputs, out, limit=1, seed=9, overwrite=True, examiner=False)
     assert r["settings"]["seed"] == 9 and load_subject(out).num_frames == 2 and not (out / HISTOGRAM_PNG).exists()
@@ -287,7 +287,7 @@ def test_overwrite_removes_only_what_augment_wrote_and_resume_removes_temporary_
     for foreign in (out / "notes.txt", out / "images" / "mine.png", out / "records" / "notes.txt"):
         foreign.write_text("not augment's")
         before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
-        with pytest.raises(FileExistsError, match=rf"--overwrite: {foreign} was not written by trioman augment"):
+        with pytest.raises(FileExistsError, match=rf"^overwrite: {foreign} was not written by trioman augment"):
             run(inputs, out, limit=1, overwrite=True)
         assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before  # nothing removed
         foreign.unlink()
@@ -356,7 +356,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, str
 
 
 def test_threshold_without_an_examiner_is_refused(inputs, tmp_path):
-    with pytest.raises(ValueError, match=r"--threshold: 0.5 needs an Examiner \(--examiner\)"):
+    with pytest.raises(ValueError, match=r"^threshold: 0.5 needs an Examiner \(`examiner`\)"):
         run(inputs, tmp_path / "o", examiner=False, threshold=0.5)
     assert not (tmp_path / "o").exists()
 
@@ -388,7 +388,7 @@ def test_mask_alpha_keeps_the_render_alpha(inputs, tmp_path):
                   src.width, src.height, background=src.background)
     np.testing.assert_array_equal(to_uint8(read_png(aug.mask_path(0))), to_uint8(np.clip(r.alpha, 0, 1)))
     assert aug.meta["generator"]["mask"] == "avatar render alpha"
-    with pytest.raises(ValueError, match="--mask: expected one of"):
+    with pytest.raises(ValueError, match="^mask: expected one of"):
         run(inputs, tmp_path / "bad", mask="silhouette")
 
 
@@ -411,5 +411,59 @@ def test_without_a_refiner_the_frames_are_aligned_with_per_pixel_weights(inputs,
     augment(inputs.subject, inputs.avatar, None, out, frames="all", limit=2, seed=7, progress=False, per_frame=1,
             resume=True)
     assert snapshot(out) == before
-    with pytest.raises(ValueError, match="--examiner: chooses among refined candidates"):
+    with pytest.raises(ValueError, match="^examiner: chooses among refined candidates; give `refiner` too"):
         augment(inputs.subject, inputs.avatar, None, tmp_path / "e", inputs.examiner, progress=False)
+
+
+def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs, tmp_path, capsys):
+    """--keep-carried: where a real pixel was carried to the draw the pseudo-GT shows it, elsewhere the Refiner's
+    output, the same bytes as without the flag; recorded in the settings and the subject; refused without --refiner;
+    a resume with the other value is refused, and a run that did not record it resumes as one without it."""
+    base = ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
+            "--frames", "all", "--limit", "1", "--seed", "7", "--quiet"]
+    plain, kept = tmp_path / "plain", tmp_path / "kept"
+    assert main(base + ["--out", str(plain)]) == 0
+    assert main(base + ["--out", str(kept), "--keep-carried"]) == 0
+    capsys.readouterr()
+    a, b = load_subject(plain), load_subject(kept)
+    assert a.frame_names.tolist() == b.frame_names.tolist() and b.num_frames == 2  # no Examiner: both candidates
+    assert json.loads((kept / AUGMENT_JSON).read_text())["settings"]["keep_carried"] is True
+    assert json.loads((plain / AUGMENT_JSON).read_text())["settings"]["keep_carried"] is False
+    assert b.meta["generator"]["keep_carried"] is True and a.meta["generator"]["keep_carried"] is False
+
+    src, av, rec = load_subject(inputs.subject), load_avatar(inputs.avatar), records(kept)[0]
+    every, i = src.indices(None), rec["source"]["index"]  # --frames all: real pixels are carried from every frame
+    K, W, H, bg = np.array(src.K[i], np.float64), src.width, src.height, src.background.astype(np.float32)
+    aligner = Aligner(src.body, SourceViews.of_subject(src, every))
+    for k, c in enumerate(sample(src.body.skeleton, src.poses[i], src.trans[i], src.viewmat[i], rec["seed"], 2)):
+        coarse = np.clip(rasterize(*av.gaussians(c.pose, c.trans), c.viewmat, K, W, H, background=bg).rgb, 0.0, 1.0)
+        al = aligner.align(int(np.flatnonzero(every == i)[0]), c.pose, c.trans, c.viewmat, K, coarse)
+        assert 0 < al.valid.mean() < 1
+        np.testing.assert_array_equal(read_png(a.mask_path(k)), read_png(b.mask_path(k)))  # the same carried mask
+        plain_img, kept_img = to_uint8(read_png(a.image_path(k))), to_uint8(read_png(b.image_path(k)))
+        np.testing.assert_array_equal(kept_img[~al.valid], plain_img[~al.valid])  # nothing carried: the Refiner's
+        m = al.silhouette[..., None]
+        np.testing.assert_array_equal(kept_img[al.valid], to_uint8(al.rgb * m + (1.0 - m) * bg)[al.valid])  # the real
+        assert (kept_img[al.valid] != plain_img[al.valid]).any()
+
+    no = tmp_path / "no"
+    assert main(["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--out", str(no), "--keep-carried",
+                 "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "--keep-carried: takes the Refiner's output where nothing was carried; give --refiner too" in err, err
+    assert not no.exists()
+    with pytest.raises(ValueError, match="^keep_carried: takes the Refiner's output .* give `refiner` too"):
+        augment(inputs.subject, inputs.avatar, None, no, keep_carried=True, progress=False)
+    with pytest.raises(ValueError, match="^keep_carried: must be true or false, got 1"):
+        augment(inputs.subject, inputs.avatar, inputs.refiner, no, keep_carried=1, progress=False)
+    assert not no.exists()
+
+    assert main(base + ["--out", str(plain), "--resume", "--keep-carried"]) == 1
+    err = capsys.readouterr().err
+    assert f"--resume: keep_carried differs from the run in {plain} (was False, now True); use the same inputs, or " \
+           f"--overwrite to start again" in err, err
+    meta = json.loads((plain / AUGMENT_JSON).read_text())
+    del meta["settings"]["keep_carried"]  # a run of a version that did not record it
+    (plain / AUGMENT_JSON).write_text(json.dumps(meta))
+    assert main(base + ["--out", str(plain), "--resume"]) == 0
+    assert json.loads((plain / AUGMENT_JSON).read_text())["timing"]["frames_resumed"] == 1

@@ -9,12 +9,22 @@ docs/formats.md "Augmented frames". Train on the result with ``trioman train SUB
 many sharing DIR); ``--merge`` with the same inputs then checks every shard and assembles DIR
 (docs/scaling.md).
 
+The library's errors name its parameters (``per_frame: ...``); ``run`` shows them with this command's flags
+(``--per-frame: ...``, docs/design.md, "Conventions").
+
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
+
+# The parameters of trioman.runtime.augment.augment that this command's flags set -> the flag as typed.
+FLAGS = {"subject": "SUBJECT", "avatar": "--avatar", "refiner": "--refiner", "examiner": "--examiner", "out": "--out",
+         "per_frame": "--per-frame", "threshold": "--threshold", "seed": "--seed", "frames": "--frames",
+         "limit": "--limit", "mask": "--mask", "keep_carried": "--keep-carried", "threads": "--threads",
+         "resume": "--resume", "overwrite": "--overwrite", "shard": "--shard", "merge": "--merge"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mask", choices=("carried", "alpha"), default="carried",
                         help="the pseudo frames' mask: the body mesh plus the source frame's mask carried to the draw "
                              "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
+    parser.add_argument("--keep-carried", action="store_true",
+                        help="with --refiner: keep the real pixels carried to the draw and take the Refiner's output "
+                             "only where nothing was carried")
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: its own)")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")
@@ -53,10 +66,15 @@ def run(args: argparse.Namespace) -> int:
     from trioman.runtime.shards import Shard
 
     shard = None if args.shard is None else Shard.parse(args.shard)
-    r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
-                threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
-                overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard, merge=args.merge,
-                mask=args.mask)
+    try:
+        r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
+                    threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
+                    overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard,
+                    merge=args.merge, mask=args.mask, keep_carried=args.keep_carried)
+    except (ValueError, OSError) as err:  # our own messages (an OSError with an errno is the system's): flags
+        if len(err.args) == 1 and isinstance(err.args[0], str) and not getattr(err, "errno", None):
+            err.args = (flag_message(err.args[0]),)
+        raise
     if shard is not None:
         print(f"augment: shard {shard} done ({len(r['items'])} source frames in {Path(args.out) / 'shards' / shard.name}); "
               f"assemble with --merge when every shard is done")
@@ -82,3 +100,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"augment: records {out / RECORDS_DIR}, report {out / AUGMENT_JSON}"
           + (f", score histogram {out / s['histogram']}" if s["histogram"] else ""))
     return 0
+
+
+def flag_message(message: str) -> str:
+    """A library error as this command's user reads it: the leading parameter name(s) (``name:``, ``a and b:``) and
+    the backquoted ones (`` `name` ``) become flags (FLAGS); the rest stays as it is."""
+    head, sep, rest = message.partition(": ")
+    names = head.split(" and ")
+    if sep and all(n in FLAGS for n in names):
+        head = " and ".join(FLAGS[n] for n in names)
+    return re.sub(r"`(\w+)`", lambda m: FLAGS.get(m[1], m[0]), head + sep + rest)
