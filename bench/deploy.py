@@ -166,7 +166,7 @@ def _augment_stages(corpus: Path, onnx_dir: Path, work: Path, frames: int) -> di
 def bench_deploy(args: argparse.Namespace) -> dict:
     from trioman.export.onnx_models import export_onnx
     from trioman.toolkit.corpus import triplet_paths
-    from trioman.toolkit.train.checkpoint import model_checkpoint
+    from trioman.toolkit.loops.checkpoint import model_checkpoint
     from trioman.toolkit.triplets import TripletSet
 
     corpus, models = Path(args.corpus), Path(args.models)

@@ -336,7 +336,7 @@ class LoopOutcome(NamedTuple):
     weights_finite: bool  # the weights after the last step that ran are finite
 
 
-_SKIPPED_IN_ALL = re.compile(r"\((\d+) skipped in all\)")  # the guard's stop message (toolkit/train/guard.py)
+_SKIPPED_IN_ALL = re.compile(r"\((\d+) skipped in all\)")  # the guard's stop message (toolkit/loops/guard.py)
 
 
 def loop_outcome(train: Callable[[], Any], run: Path) -> LoopOutcome:
@@ -347,8 +347,8 @@ def loop_outcome(train: Callable[[], Any], run: Path) -> LoopOutcome:
     run the guard stopped (its message counts the skipped steps "in all") kept the finite weights of its
     last update; a refused checkpoint means non-finite weights, and the step that made them updated, so
     the previous checkpoint's count is the run's."""
-    from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint
-    from trioman.toolkit.train.guard import NonFiniteError
+    from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint
+    from trioman.toolkit.loops.guard import NonFiniteError
 
     def counted() -> int:
         ckpt = latest_checkpoint(run)

@@ -43,7 +43,7 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
     from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.data import load_frames
-    from trioman.toolkit.train.guard import StepGuard
+    from trioman.toolkit.loops.guard import StepGuard
     from trioman.toolkit.train.loop import param_groups, train_step
 
     subject = load_subject(subject_dir)

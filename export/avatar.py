@@ -231,7 +231,7 @@ def export_avatar(run: str | Path, out: str | Path, checkpoint: str | Path | Non
     -> (runtime Avatar, info dict).
     """
     from trioman.toolkit.evaluate import load_run
-    from trioman.toolkit.train.checkpoint import latest_checkpoint
+    from trioman.toolkit.loops.checkpoint import latest_checkpoint
 
     out = Path(out)
     check_folder_target(out, overwrite, AVATAR_FOLDER, (run, checkpoint))  # before any work; again with the subject

@@ -57,7 +57,7 @@ class CorpusConfig:
 
 
 def finished(run: Path, iterations: int) -> bool:
-    from trioman.toolkit.train.checkpoint import latest_checkpoint
+    from trioman.toolkit.loops.checkpoint import latest_checkpoint
 
     ckpt = latest_checkpoint(run) if (run / "config.json").exists() else None
     return ckpt is not None and int(ckpt.stem.split("_")[-1]) >= iterations

@@ -19,7 +19,7 @@ from trioman.runtime.preview import contact_sheet
 from trioman.toolkit.avatar.model import GaussianAvatar
 from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.metrics import METRIC_KEYS, evaluate_pair
-from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint
+from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint
 from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.loop import render
 

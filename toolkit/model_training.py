@@ -22,7 +22,7 @@ from trioman.toolkit.corpus import triplet_paths
 from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
 from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, pair_auroc, train_examiner
 from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, train_refiner
-from trioman.toolkit.train.checkpoint import latest_checkpoint
+from trioman.toolkit.loops.checkpoint import latest_checkpoint
 from trioman.toolkit.triplets import TripletSet, Tuples
 
 

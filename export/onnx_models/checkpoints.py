@@ -17,7 +17,7 @@ from trioman.export.onnx_models.errors import ExportError
 def resolve_checkpoint(ckpt: str | os.PathLike) -> Path:
     """A checkpoint file itself, or a run folder's model checkpoint (its validation-selected
     weights, run/selected.pt, if it has them, else its latest checkpoint)."""
-    from trioman.toolkit.train.checkpoint import model_checkpoint
+    from trioman.toolkit.loops.checkpoint import model_checkpoint
 
     path = Path(ckpt)
     if path.is_dir():
@@ -82,7 +82,7 @@ def load_source(kind: str, model_or_ckpt: Any) -> Source:
         model = build(config)
         model.load_state_dict(model_or_ckpt.state_dict())
         return Source(model.eval(), f"<in-memory {type(model_or_ckpt).__name__}>", None, config_hash(config.to_dict(), None))
-    from trioman.toolkit.train.checkpoint import load_checkpoint
+    from trioman.toolkit.loops.checkpoint import load_checkpoint
 
     path = resolve_checkpoint(model_or_ckpt)
     state = load_checkpoint(path)

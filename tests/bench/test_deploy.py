@@ -18,7 +18,7 @@ from trioman.bench.deploy import (  # noqa: E402
 )
 from trioman.bench.models import bench_models  # noqa: E402
 from trioman.toolkit.corpus import triplet_paths  # noqa: E402
-from trioman.toolkit.train.checkpoint import latest_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import latest_checkpoint  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
 
 

@@ -11,8 +11,8 @@ pytest.importorskip("onnx")
 from trioman.bench.stability import LoopOutcome, loop_outcome  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.export.onnx_models import EXAMINER_ATOL, REFINER_ATOL  # noqa: E402
-from trioman.toolkit.train.checkpoint import save_checkpoint  # noqa: E402
-from trioman.toolkit.train.guard import StepGuard, check_weights  # noqa: E402
+from trioman.toolkit.loops.checkpoint import save_checkpoint  # noqa: E402
+from trioman.toolkit.loops.guard import StepGuard, check_weights  # noqa: E402
 
 ONNX = "Refiner and Examiner, ONNX variants on extreme images"
 TRAINING = "training loops at 1x and 100x the default learning rate"

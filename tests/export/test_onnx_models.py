@@ -26,7 +26,7 @@ from trioman.runtime.models import ExaminerModel, RefinerModel, load_model, read
 from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create_examiner, load_examiner, train_examiner  # noqa: E402
 from trioman.toolkit.model_training import examiner_batch, refiner_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, train_refiner  # noqa: E402
-from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
 
 S = 32

@@ -21,7 +21,7 @@ from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
 from trioman.toolkit.distributed import Ranks, process_group  # noqa: E402
 from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, find_lpips_weights  # noqa: E402
 from trioman.toolkit.model_training import FitConfig, SampleStream, fit_examiner, fit_refiner  # noqa: E402
-from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
 
 BATCH = 2  # per rank; one process trains on 2 x BATCH

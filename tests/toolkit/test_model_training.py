@@ -137,7 +137,7 @@ def test_examiner_keeps_the_step_validated_best_on_held_out_training_subjects(co
     model, fit.json and run/selected.pt (what export and bench deploy load) name the best step."""
     from trioman.toolkit.examiner import load_examiner, pair_auroc
     from trioman.toolkit.model_training import examiner_batch, fit_examiner
-    from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, model_checkpoint
+    from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint, model_checkpoint
 
     run = tmp_path / "ex"
     model, info = fit_examiner(corpus, run, fit=FitConfig(steps=4, batch=2, crop=None), validate_every=2)
@@ -167,7 +167,7 @@ def test_a_resume_with_another_crop_names_the_fields_and_the_command(corpus, tmp
     from trioman.toolkit.examiner import examiner_config
     from trioman.toolkit.model_training import REFINER_SIZES
     from trioman.toolkit.refiner import RefinerConfig
-    from trioman.toolkit.train.checkpoint import save_checkpoint
+    from trioman.toolkit.loops.checkpoint import save_checkpoint
 
     monkeypatch.delenv("TRIOMAN_LPIPS_DIR", raising=False)
     run = tmp_path / "ref"  # a run started with --crop 16 --conditions tex (its checkpoint, weights aside)

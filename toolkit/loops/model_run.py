@@ -1,6 +1,6 @@
-"""A model's training run in a run folder, the part the Refiner's and the Examiner's loops share: resume from
-the newest checkpoint, the non-finite guard, the progress bar and a checkpoint at each boundary (written by
-rank 0 alone, never from non-finite weights)."""
+"""A model's training run in a run folder, the part every training loop shares (the avatar's, the Refiner's, the
+Examiner's): resume from the newest checkpoint, the non-finite guard, the progress bar and a checkpoint at each
+boundary (written by rank 0 alone, never from non-finite weights)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,8 @@ from trioman.toolkit.loops.guard import StepGuard, check_weights
 
 
 class LoopConfig(Protocol):
-    """The fields of a loop's config that its run reads (``RefinerTrainConfig``, ``ExaminerTrainConfig``)."""
+    """The fields of a loop's config that its run reads (``RefinerTrainConfig``, ``ExaminerTrainConfig``;
+    ``TrainConfig``, the avatar's, names its length ``iterations`` and passes it as ``ModelRun(steps=...)``)."""
 
     steps: int
     checkpoint_every: int
@@ -36,31 +37,48 @@ class ModelRun:
     that checkpoint ({} for a fresh run) for the loop's own entries (an RNG, a selection). A checkpoint of
     another model config is refused (``ConfigMismatch`` naming ``what``, e.g. "Refiner"), and so is one
     written at another world size. ``name`` labels the guard's messages and the bar, shown with
-    ``progress`` on rank 0 (on a terminal only).
+    ``progress`` on rank 0 (on a terminal only), counting in ``unit``.
+
+    The avatar's loop (``toolkit.train.loop``) keeps a run record of its own, run/config.json, and says so with
+    keywords: ``what`` None (the caller has checked the run's config: the checkpoint's is not compared),
+    ``resume`` False for a run not asked to resume (no checkpoint is looked for), ``steps`` the run's length
+    (None: ``config.steps``) and ``open_bar`` False to open the bar later, with ``open_bar()``, once the run
+    is there (else the first ``advance`` opens it).
     """
 
-    def __init__(self, name: str, what: str, model: nn.Module, optimizer: torch.optim.Optimizer,
-                 config: LoopConfig, run: str | os.PathLike | None, progress: bool) -> None:
+    def __init__(self, name: str, what: str | None, model: nn.Module, optimizer: torch.optim.Optimizer,
+                 config: LoopConfig, run: str | os.PathLike | None, progress: bool, *, steps: int | None = None,
+                 resume: bool = True, unit: str = "step", open_bar: bool = True) -> None:
         self.model, self.optimizer, self.config = model, optimizer, config
+        self.steps = config.steps if steps is None else steps
         self.run = None if run is None else Path(run)
         self.ranks = current()
         self.step, self.saved, skipped, self.resumed = 0, None, 0, {}
-        found = latest_checkpoint(self.run) if self.run is not None else None
+        found = latest_checkpoint(self.run) if self.run is not None and resume else None
         if found is not None:
             state = load_checkpoint(found)
-            check_config(found, state["config"], model.config.to_dict(), what)
+            if what is not None:
+                check_config(found, state["config"], model.config.to_dict(), what)
             check_world_size(int(state.get("world_size", 1)), self.ranks, found)
             model.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
             self.step, self.saved, skipped, self.resumed = int(state["step"]), found, int(state.get("skipped", 0)), state
         self.guard = StepGuard(name, config.max_skipped, skipped)
         self.losses: list[float] = []  # one per step of this call that updated the model
-        self.bar = tqdm(total=config.steps, initial=self.step, desc=name, unit="step",
-                        disable=None if progress and self.ranks.main else True)
+        self._progress, self._unit, self._bar = progress, unit, None
+        if open_bar:
+            self.open_bar()
+
+    def open_bar(self) -> tqdm:
+        """The progress bar, opened now if it is not open yet."""
+        if self._bar is None:
+            self._bar = tqdm(total=self.steps, initial=self.step, desc=self.guard.name, unit=self._unit,
+                             disable=None if self._progress and self.ranks.main else True)
+        return self._bar
 
     @property
     def running(self) -> bool:
-        return self.step < self.config.steps
+        return self.step < self.steps
 
     def advance(self, loss: float | None, **shown: str) -> bool:
         """Count a step (``loss`` None when the guard skipped it) and show it, with ``shown`` after the loss ->
@@ -68,10 +86,11 @@ class ModelRun:
         if loss is not None:
             self.losses.append(loss)
         self.step += 1
-        self.bar.update(1)
-        self.bar.set_postfix(loss=f"{self.losses[-1]:.4f}" if self.losses else "-", **shown,
-                             **({"skipped": self.guard.skipped} if self.guard.skipped else {}))
-        return self.step % self.config.checkpoint_every == 0 or self.step == self.config.steps
+        bar = self.open_bar()
+        bar.update(1)
+        bar.set_postfix(loss=f"{self.losses[-1]:.4f}" if self.losses else "-", **shown,
+                        **({"skipped": self.guard.skipped} if self.guard.skipped else {}))
+        return self.step % self.config.checkpoint_every == 0 or self.step == self.steps
 
     def check_weights(self) -> None:
         """Before a checkpoint or a validation: ``NonFiniteError`` when a weight is NaN or Inf."""
@@ -90,6 +109,6 @@ class ModelRun:
 
     def finish(self) -> None:
         """Close the bar, put the model in eval mode and wait for every rank."""
-        self.bar.close()
+        self.open_bar().close()
         self.model.eval()
         barrier()

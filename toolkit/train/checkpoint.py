@@ -1,5 +1,6 @@
-"""Atomic checkpoints live in ``toolkit.loops.checkpoint``, with what every training loop shares; these names
-stay importable here for the avatar loop and the callers outside toolkit until they import them from there."""
+"""Atomic checkpoints live in ``toolkit.loops.checkpoint``, with what every training loop shares. This re-export
+stays only for ``bench/ablation.py`` (``condition_check``) until it imports ``latest_checkpoint`` from there;
+then this file goes."""
 
 from trioman.toolkit.loops.checkpoint import (
     ConfigMismatch,

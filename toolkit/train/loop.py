@@ -1,4 +1,6 @@
-"""The avatar optimisation loop: losses, schedule, progress, checkpoints and resume."""
+"""The avatar optimisation loop: losses, schedule and the run's log, in a ``ModelRun`` (toolkit/loops/model_run.py:
+resume, the non-finite guard, progress, atomic checkpoints); the run's record and its resume checks are
+toolkit/train/resume.py's."""
 
 from __future__ import annotations
 
@@ -9,7 +11,6 @@ from typing import Callable
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
@@ -17,13 +18,14 @@ from trioman.runtime.image_io import atomic_write_text, naming_os_errors, remove
 from trioman.runtime.render.timing import stage
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
+from trioman.toolkit.loops.checkpoint import latest_checkpoint
+from trioman.toolkit.loops.guard import StepGuard
+from trioman.toolkit.loops.model_run import ModelRun
 from trioman.toolkit.metrics import psnr, ssim, ssim_map
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.augmentation import Augmenter
-from trioman.toolkit.train.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.data import join_frames, load_frames
-from trioman.toolkit.train.guard import StepGuard, check_weights
 from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
@@ -148,42 +150,42 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     optimizer = torch.optim.Adam(param_groups(model, cfg), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)
     torch_gen = torch.Generator().manual_seed(cfg.seed)
-    step, seconds, skipped = 0, 0.0, 0
-    ckpt = latest_checkpoint(run) if resume else None
-    if ckpt is not None:
-        state = load_checkpoint(ckpt)
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        step, seconds, skipped = int(state["step"]), float(state["seconds"]), int(state.get("skipped", 0))
-        rng.bit_generator.state = json.loads(state["numpy_rng"])
-        torch_gen.set_state(state["torch_rng"])
+    # The run's config was checked against its record (_prepare_run), not against the checkpoint's; a run not
+    # asked to resume loads no checkpoint; the bar opens once the run is there.
+    loop = ModelRun("train", None, model, optimizer, cfg, run, progress, steps=cfg.iterations, resume=resume, unit="it",
+                    open_bar=False)
+    seconds = 0.0
+    if loop.resumed:
+        seconds = float(loop.resumed["seconds"])
+        rng.bit_generator.state = json.loads(loop.resumed["numpy_rng"])
+        torch_gen.set_state(loop.resumed["torch_rng"])
         if augmenter is not None:
-            augmenter.load_state_dict(state["augment"])
-    guard = StepGuard("train", cfg.max_skipped, skipped)
+            augmenter.load_state_dict(loop.resumed["augment"])
     write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
     log = run / "train_log.csv"
-    _trim_log(log, step)
+    _trim_log(log, loop.step)
 
     def checkpoint() -> None:
-        check_weights(model, "train", step, latest_checkpoint(run))
-        path = save_checkpoint(run, step, {
-            "step": step, "seconds": seconds, "skipped": guard.skipped, "model": model.state_dict(),
+        loop.check_weights()
+        loop.save({
+            "step": loop.step, "seconds": seconds, "skipped": loop.guard.skipped, "model": model.state_dict(),
             "optimizer": optimizer.state_dict(),
             "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
             "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
             **({} if augmenter is None else {"augment": augmenter.state_dict()}),
-        }, keep=cfg.keep_checkpoints)
+        })
         if augmenter is not None:
-            atomic_write_text(run / AUGMENT_JSON, json.dumps(augmenter.summary(step), indent=2) + "\n")
+            atomic_write_text(run / AUGMENT_JSON, json.dumps(augmenter.summary(loop.step), indent=2) + "\n")
         if on_checkpoint is not None:
-            on_checkpoint(step, path)
+            on_checkpoint(loop.step, loop.saved)
 
-    bar = tqdm(total=cfg.iterations, initial=step, desc="train", unit="it", disable=None if progress else True)
+    loop.open_bar()
     done_here = 0
     run_psnr = None
     with naming_os_errors(log), log.open("a") as log_file:
-        while step < cfg.iterations and (stop_after is None or done_here < stop_after):
+        while loop.running and (stop_after is None or done_here < stop_after):
             t0 = time.perf_counter()
+            step = loop.step
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(cfg, step) * group["lr_scale"]
             if augmenter is not None and augmenter.due(step):
@@ -192,19 +194,17 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
                 sample = augmenter.draw()
             else:
                 sample = frames.sample(int(rng.integers(len(frames))))
-            loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, guard, step)
-            step += 1
+            loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step)
             done_here += 1
             seconds += time.perf_counter() - t0
             if np.isfinite(p):
                 run_psnr = p if run_psnr is None else 0.9 * run_psnr + 0.1 * p
-            log_file.write(f"{step},{seconds:.3f},{loss:.6f},{p:.4f},{learning_rate(cfg, step - 1):.3g}\n")
-            bar.update(1)
-            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{run_psnr or 0:.2f}", **({"skipped": guard.skipped} if guard.skipped else {}))
-            if step % cfg.checkpoint_every == 0 or step == cfg.iterations:
+            log_file.write(f"{step + 1},{seconds:.3f},{loss:.6f},{p:.4f},{learning_rate(cfg, step):.3g}\n")
+            # every step's loss, a skipped step's too, as in the log (the bar shows it; loop.losses is not read)
+            if loop.advance(loss, psnr=f"{run_psnr or 0:.2f}"):
                 log_file.flush()
                 checkpoint()
-    bar.close()
+    loop.finish()
     return run
 
 

@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.distributed import process_group
     from trioman.toolkit.model_training import FitConfig, fit_examiner
-    from trioman.toolkit.train.checkpoint import ConfigMismatch
+    from trioman.toolkit.loops.checkpoint import ConfigMismatch
 
     fit = FitConfig(steps=args.steps, batch=args.batch, lr=3e-4, crop=None, seed=args.seed, baseline_frames=args.baseline_frames)
     with process_group(args.device) as ranks:

@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from trioman.toolkit.distributed import process_group
     from trioman.toolkit.model_training import FitConfig, fit_refiner
     from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
-    from trioman.toolkit.train.checkpoint import ConfigMismatch
+    from trioman.toolkit.loops.checkpoint import ConfigMismatch
 
     fit = FitConfig(steps=args.steps, batch=args.batch, crop=args.crop, seed=args.seed, baseline_frames=args.baseline_frames)
     with process_group(args.device) as ranks:

@@ -20,7 +20,7 @@ from tests.toolkit.test_model_training import corpus  # noqa: E402,F401 (fixture
 from tests.toolkit.refiner.helpers import synthetic_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, train_refiner  # noqa: E402
 from trioman.toolkit.refiner.sd_turbo import PROMPT_FILE, SdTurboFolderError, SdTurboRefiner, write_tiny_folder  # noqa: E402
-from trioman.toolkit.train.checkpoint import model_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import model_checkpoint  # noqa: E402
 
 S = 32  # image side; the tiny folder's total downsampling is 4
 

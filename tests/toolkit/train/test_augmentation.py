@@ -16,7 +16,7 @@ from trioman.toolkit.examiner import Examiner, ExaminerConfig  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, create_refiner  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.train.augmentation import AugmentConfig  # noqa: E402
-from trioman.toolkit.train.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
 from trioman.toolkit.train.loop import AUGMENT_JSON, train  # noqa: E402
 from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner  # noqa: E402

@@ -16,7 +16,7 @@ from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_subject, save_subject  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
-from trioman.toolkit.train.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
 from trioman.toolkit.train.data import join_frames, load_frames  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402

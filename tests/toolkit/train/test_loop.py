@@ -15,7 +15,7 @@ from tests.conftest import run_python  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
 from trioman.toolkit.evaluate import evaluate, load_run  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
-from trioman.toolkit.train.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
+from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig, preset  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
 
@@ -54,6 +54,9 @@ def test_resume_after_interruption_matches_an_uninterrupted_run(subject, tmp_pat
     assert a["step"] == b["step"] == 6
     for key in a["model"]:
         torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=1e-6)
+    torch.testing.assert_close(a["optimizer"]["state"], b["optimizer"]["state"], rtol=0, atol=1e-6)
+    assert (a["numpy_rng"], a["skipped"], a["config"]) == (b["numpy_rng"], b["skipped"], b["config"])
+    assert torch.equal(a["torch_rng"], b["torch_rng"]) and list(a) == list(b)  # the same entries, in the same order
     np.testing.assert_allclose(losses(straight), losses(broken), atol=1e-6)  # the log was trimmed and rewritten
     assert not list((broken / "checkpoints").glob(".*")), "no temporary files left behind"
 
@@ -263,7 +266,7 @@ def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_pat
 
     from tests.test_cli import full_disk_open
     from trioman.runtime import image_io
-    from trioman.toolkit.train.checkpoint import checkpoint_path, save_checkpoint
+    from trioman.toolkit.loops.checkpoint import checkpoint_path, save_checkpoint
 
     monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
     with pytest.raises(OSError) as err:
