@@ -52,6 +52,7 @@ class PseudoConfig:
     unknown_weight: float = 0.0  # kind "aligned": loss weight of body pixels that no real pixel reached
     detail_sigma: float = 0.0  # > 0: keep only the Refiner's detail (runtime.generator.keep_detail)
     threshold: float | None = None  # examined: drop the best candidate when its score is below
+    keep_carried: bool = False  # refined / examined: carried real pixels stay, the Refiner's output only elsewhere
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -64,6 +65,11 @@ class PseudoConfig:
                 raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
         if self.unknown_weight > 1:
             raise ValueError(f"unknown_weight: must lie in [0, 1], got {self.unknown_weight!r}")
+        if not isinstance(self.keep_carried, bool):
+            raise ValueError(f"keep_carried: must be true or false, got {self.keep_carried!r}")
+        if self.keep_carried and not self.refined:
+            raise ValueError(f"keep_carried: needs kind 'refined' or 'examined' (a Refiner to fill what was not "
+                             f"carried), got kind {self.kind!r}")
 
     @property
     def refined(self) -> bool:
@@ -72,8 +78,8 @@ class PseudoConfig:
 
 def needs_aligner(cfg: PseudoConfig, refiner_conditions: str | None = None) -> bool:
     """Whether the step needs the aligned reference: kind aligned, the carried mask (truth brings its own),
-    or a Refiner conditioned on it."""
-    return (cfg.kind == "aligned" or (cfg.mask == "carried" and cfg.kind != "truth")
+    carried pixels kept, or a Refiner conditioned on it."""
+    return (cfg.kind == "aligned" or (cfg.mask == "carried" and cfg.kind != "truth") or cfg.keep_carried
             or (cfg.refined and refiner_conditions in ALIGNED_CONDITIONS))
 
 
@@ -167,6 +173,8 @@ def make_pseudo_frames(
         content = np.clip(content, 0.0, 1.0)
         if cfg.detail_sigma > 0:
             content = keep_detail(coarse, content, cfg.detail_sigma)
+        if cfg.keep_carried:
+            content = np.stack([np.where(a.valid[..., None], a.rgb, x) for a, x in zip(aligned, content)])
         t = _tick(seconds, "refine", t)
     chosen, scores, kept = None, None, list(range(len(candidates)))
     if cfg.kind == "examined" and examiner is not None and (len(candidates) > 1 or cfg.threshold is not None):

@@ -132,6 +132,24 @@ def test_a_warp_refiner_refines_the_aligned_reference():
         make_pseudo_frames(cands, source(), junk_render, PseudoConfig("refined", mask="alpha"), body=MESH, refiner=ref)
 
 
+def test_keep_carried_takes_the_refiner_only_where_nothing_was_carried():
+    """keep_carried: the carried real pixels stay as the aligned kind has them; the rest is the Refiner's."""
+    cands = draws(2, seed=3)
+    ref = _Brighten()  # a tex Refiner: without keep_carried it needs no Aligner
+    made = make_pseudo_frames(cands, source(), junk_render, PseudoConfig("refined", keep_carried=True),
+                              aligner=aligner(), refiner=ref)
+    plain = make_pseudo_frames(cands, source(), junk_render, PseudoConfig("aligned"), aligner=aligner())
+    for k, c in enumerate(cands):
+        a = aligner().align(0, c.pose, c.trans, c.viewmat, K, junk_render(c)[0])
+        assert a.valid.sum() > 0 and (a.body & ~a.valid).sum() > 0
+        np.testing.assert_allclose(made.images[k][a.valid], plain.images[k][a.valid], atol=1e-6)
+        fill = a.body & ~a.valid & (made.masks[k] == 1)
+        np.testing.assert_allclose(made.images[k][fill], np.clip(junk_render(c)[0][fill] + 0.1, 0, 1), atol=1e-6)
+    assert needs_aligner(PseudoConfig("refined", mask="alpha", keep_carried=True), "tex")
+    with pytest.raises(ValueError, match="keep_carried: needs kind 'refined' or 'examined'"):
+        PseudoConfig("aligned", keep_carried=True)
+
+
 def test_truth_needs_no_aligner():
     assert not needs_aligner(PseudoConfig("truth")) and needs_aligner(PseudoConfig("coarse"))
     assert needs_aligner(PseudoConfig("refined", mask="alpha"), "warp") and not needs_aligner(PseudoConfig("refined", mask="alpha"), "tex")

@@ -51,6 +51,7 @@ class AugmentConfig:
     detail_sigma: float = 0.0  # > 0: keep only the Refiner's detail, its change minus that change blurred by this
     # many pixels (runtime.generator.keep_detail); the avatar then never learns the Refiner's colour shift, which the
     # online loop would compound (each rebuild refines renders of an avatar trained on the previous refinements)
+    keep_carried: bool = False  # modes refined / examined: carried real pixels stay, the Refiner fills the rest
     pose_sigma: dict[str, float] = field(default_factory=dict)  # Generator pose sigmas per group (defaults otherwise)
     camera: tuple[float, float, float] | None = None  # Generator (azimuth, elevation, log-distance) sigmas; None: defaults
 
@@ -87,6 +88,8 @@ class AugmentConfig:
             raise ValueError(f"augment_detail_sigma: must be a finite number >= 0 (pixels), got {self.detail_sigma!r}")
         if self.detail_sigma > 0 and not needs_refiner:
             raise ValueError("augment_detail_sigma: needs a Refiner (--augment refined or examined)")
+        if self.keep_carried and not needs_refiner:
+            raise ValueError("augment_keep_carried: needs a Refiner to fill what was not carried (--augment refined or examined)")
         if isinstance(self.align_sources, bool) or not isinstance(self.align_sources, int) or self.align_sources < 1:
             raise ValueError(f"augment_align_sources: must be an integer >= 1, got {self.align_sources!r}")
         if self.mask not in MASKS:
@@ -106,7 +109,8 @@ class AugmentConfig:
 
     def pseudo(self) -> PseudoConfig:
         return PseudoConfig(kind=self.mode, mask=self.mask, unknown_weight=self.unknown_weight,
-                            detail_sigma=self.detail_sigma, threshold=self.threshold)
+                            detail_sigma=self.detail_sigma, threshold=self.threshold,
+                            keep_carried=self.keep_carried)
 
     def start_step(self, iterations: int) -> int:
         return int(round(self.start * iterations))

@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
     aug.add_argument("--augment-unknown-weight", type=float, default=None,
                      help="--augment aligned: loss weight of body pixels no real pixel reached (default 0)")
+    aug.add_argument("--augment-keep-carried", action="store_const", const=True, default=None,
+                     help="--augment refined|examined: keep the real pixels carried to the draw and take the "
+                          "Refiner's output only where nothing was carried")
     aug.add_argument("--augment-sources", type=int, default=None,
                      help="training frames the aligned reference fuses per draw (default 3)")
     parser.add_argument("--resume", action="store_true",
@@ -88,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
 _AUGMENT_FLAGS = {"refiner": "refiner", "examiner": "examiner", "per_frame": "per_frame", "threshold": "threshold",
                   "augment_start": "start", "augment_refresh": "refresh", "augment_pool": "pool",
                   "augment_share": "share", "augment_weight": "weight", "augment_detail_sigma": "detail_sigma",
-                  "augment_mask": "mask", "augment_unknown_weight": "unknown_weight", "augment_sources": "align_sources"}
+                  "augment_mask": "mask", "augment_unknown_weight": "unknown_weight", "augment_sources": "align_sources",
+                  "augment_keep_carried": "keep_carried"}
 
 
 def augment_config(args: argparse.Namespace):
