@@ -12,6 +12,7 @@ Variants, per held-out subject (``VARIANTS``), all from the quick preset:
     aligned         the render with real pixels carried through the body mesh, no learned model (--augment aligned)
     GR_none/tex/tex+geo   + Refiner under each of the paper's conditions (--augment refined)
     GR_warp+geo     + Refiner refining the aligned reference, with the normal map (conditions warp+geo)
+    GRk_warp+geo    the same, keeping the carried real pixels: the Refiner's output only where nothing was carried
     GRE             + Refiner (warp+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
     ceiling         the truth at every draw: the subject's own renderer (--augment truth), what a perfect Refiner gives
 
@@ -55,16 +56,20 @@ VARIANTS = (
     ("GR_tex", "refined", "tex", False),
     ("GR_tex+geo", "refined", "tex+geo", False),
     ("GR_warp+geo", "refined", "warp+geo", False),
+    ("GRk_warp+geo", "refined", "warp+geo", False),
     ("GRE", "examined", "warp+geo", True),
     ("ceiling", "truth", None, False),
 )
 # Levers: variants beyond the paper's, trained when their option is given; same tuple layout.
 LEVERS = (("GRd_tex+geo", "refined", "tex+geo", False),)
 ALL_VARIANTS = VARIANTS + LEVERS
+# AugmentConfig settings of a variant beyond its mode and Refiner condition.
+SETTINGS = {"GRk_warp+geo": {"keep_carried": True}}
 LABELS = {
     "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
     "GR_none": "+ Refinement (without condition)", "GR_tex": "+ Refinement (only tex. condition)",
     "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GR_warp+geo": "+ Generator & Refiner (aligned ref.&geo.)",
+    "GRk_warp+geo": "+ Generator & Refiner (aligned ref.&geo.), carried pixels kept",
     "GRE": "+ Generator & Refiner (aligned ref.&geo.) & Examiner",
     "GRd_tex+geo": "+ Generator & Refiner (tex.&geo.), detail only (lever)",
     "aligned": "+ Generator, aligned real pixels (no Refiner)", "ceiling": "Ceiling: the truth at every draw",
@@ -126,56 +131,66 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
     if any(name == n for n, *_ in LEVERS):
         paths["detail_sigma"] = plan.detail_sigma
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
-                        weight=plan.weight, mask=plan.mask, **paths)
+                        weight=plan.weight, mask=plan.mask, **paths, **SETTINGS.get(name, {}))
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
-def _train_and_evaluate(subject: Path, run: Path, cfg, lpips, poses: str = "stored") -> dict:
-    from trioman.toolkit.corpus import finished
-    from trioman.toolkit.evaluate import evaluate
-    from trioman.toolkit.train.loop import AUGMENT_JSON, train
+def _iterations(name: str, plan: AblationPlan) -> int:
+    return plan.iterations if name == "baseline" else plan.augmented_iterations
 
-    if not finished(run, cfg.iterations):
-        train(subject, run, cfg, resume=(run / "config.json").exists(), progress=False, lpips=lpips)
+
+def _evaluated(run: Path, iterations: int, lpips, poses: str = "stored") -> dict:
+    """A finished run's test metrics (evaluated once), training time and augmentation record."""
+    from trioman.toolkit.evaluate import evaluate
+    from trioman.toolkit.train.loop import AUGMENT_JSON
+
     summary_file = run / "eval_test" / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
-    if summary is None or summary["step"] != cfg.iterations or summary.get("poses", "stored") != poses:
+    if summary is None or summary["step"] != iterations or summary.get("poses", "stored") != poses:
         summary = evaluate(run, "test", lpips=lpips, progress=False, video=False, grid_frames=3, poses=poses)
     seconds = float((run / "train_log.csv").read_text().splitlines()[-1].split(",")[1])
     aug = json.loads((run / AUGMENT_JSON).read_text()) if (run / AUGMENT_JSON).is_file() else None
-    return {"iterations": cfg.iterations, "train_seconds": seconds, **summary["mean"], "augment": aug}
+    return {"iterations": iterations, "train_seconds": seconds, **summary["mean"], "augment": aug}
 
 
-def _models(corpus: Path, out: Path, args: argparse.Namespace) -> tuple[dict[str, Path], dict]:
+def needed_models(variants: list[str]) -> list[str]:
+    """The models (keys "refiner_<condition>", "examiner") that training ``variants`` needs; the tex+geo and
+    warp+geo Refiners always (their condition checks)."""
+    conds = {"tex+geo", "warp+geo"} | {c for n, _, c, _ in ALL_VARIANTS if n in variants and c is not None}
+    keys = [f"refiner_{c}" for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if c in conds]
+    return keys + (["examiner"] if "GRE" in variants else [])
+
+
+def _model_run(out: Path, key: str) -> Path:
+    return out / "models" / key.replace("+", "_")
+
+
+def _models(corpus: Path, out: Path, args: argparse.Namespace, keys: list[str]) -> tuple[dict[str, Path], dict]:
+    """Train (or reuse, when finished) the models ``keys`` in OUT/models; the others already there are used too."""
     from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
-    from trioman.toolkit.refiner import CONDITIONS
 
     fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop, baseline_frames=args.baseline_frames)
+    for key in keys:
+        if key == "examiner":
+            fit_examiner(corpus, _model_run(out, key), args.examiner,
+                         FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None,
+                                   baseline_frames=args.baseline_frames))
+        else:
+            fit_refiner(corpus, _model_run(out, key), key.removeprefix("refiner_"), fit, args.refiner_size)
+    return _trained_models(out, keys)
+
+
+def _trained_models(out: Path, keys: list[str]) -> tuple[dict[str, Path], dict]:
+    """The models in ``out/models`` (for --no-training; ``keys`` must be there), as _models returns them."""
     paths, info = {}, {}
-    for cond in CONDITIONS:
-        run = out / "models" / f"refiner_{cond.replace('+', '_')}"
-        _, info[f"refiner_{cond}"] = fit_refiner(corpus, run, cond, fit, args.refiner_size)
-        paths[f"refiner_{cond}"] = run
-    run = out / "models" / "examiner"
-    _, info["examiner"] = fit_examiner(corpus, run, args.examiner,
-                                       FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None,
-                                                 baseline_frames=args.baseline_frames))
-    paths["examiner"] = run
-    return paths, {k: {"seconds": v["seconds"], "steps": v["fit"]["steps"]} for k, v in info.items()}
-
-
-def _trained_models(out: Path) -> tuple[dict[str, Path], dict]:
-    """The Refiners and Examiner already trained in ``out/models`` (for --no-training), as _models returns them."""
-    from trioman.toolkit.refiner import CONDITIONS
-
-    paths = {f"refiner_{c}": out / "models" / f"refiner_{c.replace('+', '_')}" for c in CONDITIONS}
-    paths["examiner"] = out / "models" / "examiner"
-    info = {}
-    for key, run in paths.items():
+    for key in ("refiner_none", "refiner_tex", "refiner_tex+geo", "refiner_warp", "refiner_warp+geo", "examiner"):
+        run = _model_run(out, key)
         if not (run / "fit.json").is_file():
-            raise FileNotFoundError(f"--no-training: {run} holds no trained model (fit.json); run the benchmark without it first")
+            if key in keys:
+                raise FileNotFoundError(f"--no-training: {run} holds no trained model (fit.json); run the benchmark without it first")
+            continue
         fit = json.loads((run / "fit.json").read_text())
-        info[key] = {"seconds": fit["seconds"], "steps": fit["fit"]["steps"]}
+        paths[key], info[key] = run, {"seconds": fit["seconds"], "steps": fit["fit"]["steps"]}
     return paths, info
 
 
@@ -232,9 +247,11 @@ def bench_ablation(args: argparse.Namespace) -> dict:
         raise ValueError(f"--variants: unknown {sorted(only - known)}; the plan's rows are {[v for v, *_ in plan.variants]}")
     t0 = time.perf_counter()
     report_only = bool(getattr(args, "no_training", False))
-    models, model_info = _trained_models(out) if report_only else _models(corpus, out, args)
+    keys = needed_models(sorted(only) if only is not None else list(known))
+    models, model_info = _trained_models(out, keys) if report_only else _models(corpus, out, args, keys)
     print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
     from trioman.toolkit.corpus import finished
+    from trioman.toolkit.train.loop import train
 
     missing: list[str] = []
     lpips = load_lpips_or_say_why("bench ablation")
@@ -247,12 +264,14 @@ def bench_ablation(args: argparse.Namespace) -> dict:
         results[name] = {}
         for variant, seed in _variant_runs(plan):
             t = time.perf_counter()
-            cfg = _train_config(variant, seed, plan, models)
             run = out / "runs" / name / f"{variant.replace('+', '_')}_s{seed}"
-            if (report_only or (only is not None and variant not in only)) and not finished(run, cfg.iterations):
-                missing.append(f"{name}/{run.name}")
-                continue
-            r = _train_and_evaluate(subject, run, cfg, lpips, poses)
+            if not finished(run, _iterations(variant, plan)):
+                if report_only or (only is not None and variant not in only):
+                    missing.append(f"{name}/{run.name}")
+                    continue
+                train(subject, run, _train_config(variant, seed, plan, models), resume=(run / "config.json").exists(),
+                      progress=False, lpips=lpips)
+            r = _evaluated(run, _iterations(variant, plan), lpips, poses)
             results[name].setdefault(variant, {})[str(seed)] = r
             print(f"bench ablation: {name} {variant} seed {seed}: test PSNR {r['psnr']:.2f} dB "
                   f"({r['train_seconds']:.0f} s training, {time.perf_counter() - t:.0f} s with evaluation)", flush=True)
@@ -262,7 +281,8 @@ def bench_ablation(args: argparse.Namespace) -> dict:
         if "baseline" in done:  # pseudo-GT is made from the baseline avatar
             truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan, out, name)
     trips = [triplet_paths(corpus, args.baseline_frames)["heldout"][heldout.index(n)] for n in names]
-    check = {c: condition_check(models[f"refiner_{c}"], trips, c) for c in ("tex+geo", "warp+geo")}
+    check = {c: condition_check(models[f"refiner_{c}"], trips, c) for c in ("tex+geo", "warp+geo")
+             if f"refiner_{c}" in models}
     report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
@@ -418,6 +438,9 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None)]
     kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
               for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if f"refiner_{c}" in models]
+    if "refiner_warp+geo" in models:
+        kinds.append(("refined (warp+geo), carried pixels kept", PseudoConfig("refined", keep_carried=True),
+                      next(r for label, _, r in kinds if label == "refined (warp+geo)")))
     if plan.detail_sigma and "refiner_tex+geo" in models:
         kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)", PseudoConfig("refined", detail_sigma=plan.detail_sigma),
                       next(r for label, _, r in kinds if label == "refined (tex+geo)")))
@@ -453,7 +476,59 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
             x = np.stack([render_with(model, src.K)(c)[0] for c, src, _ in picked])
             inside = mask[..., 0] > 0.5
             avatars[v] = {"psnr": psnr(x), "colour_bias": [float(b) for b in (x - truth)[inside].mean(0)]}
-    return {"draws": draws, "frames": frames, "coverage": coverage, "ms_per_draw": ms, "avatars": avatars}
+    found = {"draws": draws, "frames": frames, "coverage": coverage, "ms_per_draw": ms, "avatars": avatars}
+    if "examiner" in models and "refiner_warp+geo" in models:
+        found["examiner"] = examiner_choices(subj, base, models, truth_renderer, aligner, draws, seed)
+    return found
+
+
+def _view_change(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle (degrees) between two world->camera rotations."""
+    r = np.asarray(a, np.float64)[:3, :3] @ np.asarray(b, np.float64)[:3, :3].T
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))))
+
+
+@torch.no_grad()
+def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, aligner, draws: int, seed: int) -> dict:
+    """What the Examiner keeps (the GRE row's step): for ``draws`` training frames, two Generator candidates each,
+    refined by the warp+geo Refiner; the Examiner's pick against the truth. -> {"agreement": share of pairs where the
+    pick is the candidate closer to the truth, "psnr_chosen" / "psnr_other": mean masked PSNR vs the truth,
+    "view_chosen" / "view_other": mean camera change from the source frame (degrees), "pose_chosen" /
+    "pose_other": mean summed joint-angle change (degrees), "score_gap": mean score difference}."""
+    from trioman.runtime.generator import sample
+    from trioman.runtime.metrics import psnr as psnr_db
+    from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
+    from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
+    from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
+
+    refiner = load_pseudo_refiner(str(models["refiner_warp+geo"]))
+    examiner = load_pseudo_examiner(str(models["examiner"]))
+    rng = np.random.default_rng(seed + 1)
+    W, H, bg = subj.width, subj.height, subj.background.astype(np.float32)
+    train = subj.indices("train")
+    rows = []
+    for p in rng.choice(len(train), size=draws):
+        i = int(train[p])
+        cands = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]),
+                       np.asarray(subj.viewmat[i]), rng, 2, AugmentConfig().generator())
+        m = subj.mask(i)[..., None]
+        K = np.asarray(subj.K[i], np.float64)
+        src = Source(int(p), (subj.image(i) * m + (1 - m) * bg).astype(np.float32), K, bg)
+        made = make_pseudo_frames(cands, src, lambda c: render_candidate(avatar, c, torch.from_numpy(K.astype(np.float32)), W, H, bg),
+                                  PseudoConfig("examined"), body=subj.body, aligner=aligner, refiner=refiner, examiner=examiner)
+        quality = []
+        for k, c in enumerate(cands):
+            t, tm = truth_renderer.at_draw(i, c, K)
+            tm = tm[..., None]
+            quality.append(float(psnr_db((made.images[k] * tm)[None], (t * tm)[None])[0]))
+        rows.append((made.chosen, quality, [_view_change(c.viewmat, subj.viewmat[i]) for c in cands],
+                     [float(np.degrees(np.linalg.norm(c.delta_pose, axis=-1).sum())) for c in cands], made.scores))
+    pick = [(ch, 1 - ch) for ch, *_ in rows]
+    return {"pairs": draws,
+            "agreement": float(np.mean([q[a] >= q[b] for (a, b), (_, q, *_) in zip(pick, rows)])),
+            **{f"{key}_{side}": float(np.mean([r[j][ab[s]] for ab, r in zip(pick, rows)]))
+               for j, key in ((1, "psnr"), (2, "view"), (3, "pose")) for s, side in ((0, "chosen"), (1, "other"))},
+            "score_gap": float(np.mean([r[4][a] - r[4][b] for (a, b), r in zip(pick, rows)]))}
 
 
 def _bar_charts(report: dict, out: Path) -> None:
@@ -504,7 +579,8 @@ def _tables(per_variant: dict[str, dict]) -> list[str]:
     share = share_of_ceiling(per_variant)
     lines = ["Table 1 (share of the ceiling's gain: over the equal-steps control)", ""] + head
     base = per_variant["baseline"]["psnr"] if "baseline" in per_variant else None
-    for v in ("baseline", "baseline_long", "G", "aligned", "GR_tex+geo", "GR_warp+geo", "GRE", "GRd_tex+geo", "ceiling"):
+    for v in ("baseline", "baseline_long", "G", "aligned", "GR_tex+geo", "GR_warp+geo", "GRk_warp+geo", "GRE", "GRd_tex+geo",
+              "ceiling"):
         if v in per_variant:
             paper = PAPER_TABLE1[v] - PAPER_TABLE1["baseline"] if v in PAPER_TABLE1 else None
             lines.append(_row(LABELS[v], per_variant[v], base, paper, share.get(v)))
@@ -593,6 +669,14 @@ def ablation_markdown(r: dict) -> str:
         lines += [f"| {LABELS[v]} | {a['psnr']:.2f} | {', '.join(f'{b:+.4f}' for b in a['colour_bias'])} |"
                   for v, a in t["avatars"].items()]
         lines += [""]
+        e = t.get("examiner")
+        if e:
+            lines += [f"What the Examiner keeps (the GRE step: two candidates per source frame, refined by the warp+geo "
+                      f"Refiner, from the baseline avatar; {e['pairs']} pairs): it picks the candidate closer to the truth in "
+                      f"**{e['agreement']:.0%}** of pairs (50 %: no better than a coin).", "",
+                      "| candidate | PSNR vs truth | camera change (deg) | pose change (deg, summed) |", "|---|---|---|---|",
+                      f"| kept | {e['psnr_chosen']:.2f} | {e['view_chosen']:.1f} | {e['pose_chosen']:.1f} |",
+                      f"| dropped | {e['psnr_other']:.2f} | {e['view_other']:.1f} | {e['pose_other']:.1f} |", ""]
     lines += ["## Do the Refiners use their conditions?", "",
               "Masked PSNR of held-out test triplets (coarse render at the test pose; tex+geo: the nearest-view training "
               "frame as reference; warp+geo: real pixels of other training frames carried to the test pose, "

@@ -35,14 +35,19 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert r["plan"]["detail_sigma"] == 2.0
     truth = r["pseudo_gt_truth"]["s02"]
     assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "refined (none)", "refined (tex)", "refined (tex+geo)",
-                                    "refined (warp)", "refined (warp+geo)", "detail only (tex+geo, 2 px)"}
+                                    "refined (warp+geo)", "refined (warp+geo), carried pixels kept",
+                                    "detail only (tex+geo, 2 px)"}
     assert all(np.isfinite(v) for v in truth["frames"].values()) and 0 < truth["coverage"]["aligned (no Refiner)"] <= 1
     assert set(truth["avatars"]) == {v for v, *_ in VARIANTS + LEVERS} and all(
         np.isfinite(a["psnr"]) and len(a["colour_bias"]) == 3 for a in truth["avatars"].values())
+    e = truth["examiner"]
+    assert e["pairs"] == 12 and 0 <= e["agreement"] <= 1 and all(np.isfinite(v) for v in e.values())
     cfg = json.loads((out / "runs" / "s02" / "GRd_tex_geo_s0" / "config.json").read_text())
     assert cfg["train"]["augment"]["detail_sigma"] == 2.0
+    cfg = json.loads((out / "runs" / "s02" / "GRk_warp_geo_s0" / "config.json").read_text())["train"]["augment"]
+    assert cfg["keep_carried"] and cfg["refiner"].endswith("refiner_warp_geo")
     for variant, mode in (("G", "coarse"), ("aligned", "aligned"), ("GR_tex", "refined"), ("GR_warp+geo", "refined"),
-                          ("GRE", "examined"),
+                          ("GRk_warp+geo", "refined"), ("GRE", "examined"),
                           ("GRd_tex+geo", "refined"), ("ceiling", "truth")):
         a = res[variant]["0"]["augment"]
         assert a["mode"] == mode and a["kept"] > 0, variant
@@ -61,7 +66,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     for text in ("Table 1", "Table 2", "+ Generator & Refiner (aligned ref.&geo.) & Examiner", "equal steps (control)", "paper 00028",
                  "Ceiling (the truth at every draw) over the equal-steps control", "share of the ceiling's gain",
                  "Do the Refiners use their conditions", "| refined, true reference and normal map |", "ms per step",
-                 "detail only (lever)", "Pseudo-GT against the truth: s02"):
+                 "detail only (lever)", "Pseudo-GT against the truth: s02", "What the Examiner keeps"):
         assert text in md, text
     for name in ("ablation_s02.png", "grid_s02.png", "pseudo_gt_s02.png"):
         assert (out / name).stat().st_size > 0, name
@@ -98,6 +103,21 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert "0.5 of a full turn" in (out / "ablation.md").read_text()
     assert main(argv + ["--variants", "baseline,magic"]) == 1
     assert "--variants: unknown ['magic']" in capsys.readouterr().err
+
+
+def test_a_row_alone_trains_only_the_models_it_needs(corpus, tmp_path):
+    """--variants: the rows' Refiners (and the two whose conditions are checked) train; the Examiner does not."""
+    from trioman.bench.ablation import needed_models
+
+    assert needed_models(["GR_tex"]) == ["refiner_tex", "refiner_tex+geo", "refiner_warp+geo"]
+    assert needed_models(["GRE", "baseline"]) == ["refiner_tex+geo", "refiner_warp+geo", "examiner"]
+    out = tmp_path / "bench"
+    argv = ["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--size", "32", "--iterations", "2",
+            "--seeds", "1", "--refiner-steps", "2", "--batch", "2", "--crop", "16", "--variants", "baseline,aligned"]
+    assert main(argv) == 0
+    assert sorted(p.name for p in (out / "models").iterdir()) == ["refiner_tex_geo", "refiner_warp_geo"]
+    r = json.loads((out / "ablation.json").read_text())
+    assert set(r["results"]["s02"]) == {"baseline", "aligned"} and set(r["condition_check"]) == {"tex+geo", "warp+geo"}
 
 
 def test_summary_verdicts_follow_the_numbers():
