@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from trioman.bench.common import check_int, check_path
+
 if TYPE_CHECKING:
     from trioman.toolkit.stages import StageLog
     from trioman.toolkit.train.config import TrainConfig
@@ -26,14 +28,22 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class DemoConfig:
-    out: str | Path = "out/demo"
+    out: str | Path = "out/demo"  # the demo's folder: every stage's output goes in it
     seed: int = 0  # subject seed
     size: int = 256  # image side in pixels
     frames: int = 120  # subject frames
     iterations: int = 500  # training iterations of both avatars (quick preset otherwise)
     model_steps: int = 200  # Refiner and Examiner training steps
     augment_frames: int = 24  # source frames to augment
-    progress: bool = True
+    progress: bool = True  # progress bars (on a terminal only)
+
+    def __post_init__(self) -> None:
+        check_path(self, "out")
+        check_int(self, "seed", 0)
+        for name in ("size", "frames", "iterations", "model_steps", "augment_frames"):
+            check_int(self, name)
+        if not isinstance(self.progress, bool):
+            raise ValueError(f"progress: must be a bool, got {self.progress!r}")
 
 
 # int8 calibration frames and parity / gate frames of the ONNX export (the command's default is 32 each)

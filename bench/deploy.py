@@ -16,20 +16,43 @@ Inputs come from ``trioman bench models`` (its corpus, its tex+geo Refiner and i
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from trioman.bench.common import best_time
+from trioman.bench.common import best_time, check_int, check_path
 from trioman.bench.render import avatar_scene, scene_args
 from trioman.runtime.metrics import psnr
 from trioman.runtime.render._reference import rasterize_reference
 
 OPT_LEVELS = ("disable", "basic", "extended", "all")
+
+
+@dataclass(frozen=True)
+class DeployBenchConfig:
+    out: str | Path = "out/bench"  # the report folder: the ONNX export, the augment run and the figure go in it
+    corpus: str | Path = "out/corpus"  # the corpus of the `bench models` report (its held-out test frames)
+    models: str | Path = "out/bench_models"  # the `bench models` report folder whose trained runs are exported
+    frames: int | None = None  # held-out test frames measured (None: all of them)
+    avatar_run: str | Path | None = None  # the renderer rows' trained run folder (None: the untrained default avatar)
+    size: int = 256  # the renderer rows' image side, pixels
+    repeats: int = 5  # timed calls per variant (the best counts)
+    threads: int | None = None  # onnxruntime intra-op threads (None: onnxruntime's)
+    augment_frames: int = 8  # source frames of the augment run
+
+    def __post_init__(self) -> None:
+        for name in ("out", "corpus", "models"):
+            check_path(self, name)
+        check_path(self, "avatar_run", optional=True)
+        for name in ("frames", "threads"):
+            check_int(self, name, optional=True)
+        check_int(self, "size", 2)
+        check_int(self, "repeats")
+        check_int(self, "augment_frames")
 
 
 def _ms(fn, repeats: int) -> float:
@@ -163,37 +186,38 @@ def _augment_stages(corpus: Path, onnx_dir: Path, work: Path, frames: int) -> di
             "accepted": s["accepted"], "ms_per_frame": result["timing"]["ms_per_source_frame"]}
 
 
-def bench_deploy(args: argparse.Namespace) -> dict:
+def bench_deploy(config: DeployBenchConfig) -> dict:
     from trioman.export.onnx_models import export_onnx
     from trioman.toolkit.corpus import triplet_paths
     from trioman.toolkit.loops.checkpoint import model_checkpoint
     from trioman.toolkit.triplets import TripletSet
 
-    corpus, models = Path(args.corpus), Path(args.models)
+    corpus, models = Path(config.corpus), Path(config.models)
     ckpts = {}
     for key, run in (("refiner", models / "runs" / "refiner_tex_geo"), ("examiner", models / "runs" / "examiner")):
         ckpts[key] = model_checkpoint(run) if run.is_dir() else None
         if ckpts[key] is None:
             raise FileNotFoundError(f"{run}: no trained {key} checkpoint; run `trioman bench models --out {models}` first")
-    out = Path(args.out)
+    out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     heldout = triplet_paths(corpus)["heldout"]
     frames = TripletSet.load(heldout).evaluation("test")
-    frames = frames._replace(**{k: getattr(frames, k)[: args.frames] for k in frames._fields})
+    frames = frames._replace(**{k: getattr(frames, k)[: config.frames] for k in frames._fields})
     size = int(frames.gt.shape[1])
     onnx_dir = out / "onnx"
     t = time.perf_counter()
     export = export_onnx(refiner=ckpts["refiner"], examiner=ckpts["examiner"], out=onnx_dir, variants=("fp32", "int8", "fp16"),
                          calibration=triplet_paths(corpus)["train"][:2], size=size, overwrite=True)
     export_s = time.perf_counter() - t
-    threads = args.threads
-    rows = bench_renderer_rows(avatar_scene(args.avatar_run), args.size, args.repeats)
-    rows += bench_refiner_rows(ckpts["refiner"], onnx_dir, frames, args.repeats, threads)
-    rows += bench_examiner_rows(ckpts["examiner"], onnx_dir, frames, args.repeats, threads)
+    threads = config.threads
+    avatar_run = None if config.avatar_run is None else str(config.avatar_run)
+    rows = bench_renderer_rows(avatar_scene(avatar_run), config.size, config.repeats)
+    rows += bench_refiner_rows(ckpts["refiner"], onnx_dir, frames, config.repeats, threads)
+    rows += bench_examiner_rows(ckpts["examiner"], onnx_dir, frames, config.repeats, threads)
     report = {"rows": rows, "refiner": str(ckpts["refiner"]), "examiner": str(ckpts["examiner"]), "model_size": size,
               "frames": len(frames.gt), "export": export, "export_s": export_s, "torch_threads": torch.get_num_threads(),
-              "ort_threads": threads, "render_size": args.size}
-    report["augment"] = _augment_stages(corpus, onnx_dir, out, args.augment_frames)
+              "ort_threads": threads, "render_size": config.size}
+    report["augment"] = _augment_stages(corpus, onnx_dir, out, config.augment_frames)
     report["figure"] = str(out / "deploy_error_vs_time.png")
     scatter_plot(rows, Path(report["figure"]))
     return report

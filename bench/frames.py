@@ -10,14 +10,28 @@ at most 4 GB for 1,500 frames at 1024 x 1024.
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from trioman.bench.common import check_int, check_path
 from trioman.runtime.formats import save_subject
 from trioman.runtime.skeleton import Skeleton, SkinnedMesh
 from trioman.toolkit.stages import StageLog, mib, peak_rss_bytes
+
+
+@dataclass(frozen=True)
+class FramesBenchConfig:
+    out: str | Path = "out/bench"  # the report folder: the generated subject (reused when there) and the run go in it
+    frames: int = 1500  # frames of the generated subject
+    size: int = 1024  # its image side, pixels
+    iterations: int = 20  # training iterations
+
+    def __post_init__(self) -> None:
+        check_path(self, "out")
+        for name in ("frames", "size", "iterations"):
+            check_int(self, name)
 
 
 def write_subject(out: Path, frames: int, size: int, seed: int = 0) -> None:
@@ -55,23 +69,23 @@ def write_subject(out: Path, frames: int, size: int, seed: int = 0) -> None:
                  generator={"tool": "trioman.bench.frames", "seed": seed})
 
 
-def bench_frames(args: argparse.Namespace) -> dict:
-    """The report of ``trioman bench frames`` (``args.frames`` default 1500, ``args.iterations`` default 20)."""
+def bench_frames(config: FramesBenchConfig) -> dict:
+    """The report of ``trioman bench frames``."""
     from trioman.bench.common import machine
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
 
-    frames, iterations = args.frames or 1500, args.iterations or 20
-    out = Path(args.out)
+    frames, iterations = config.frames, config.iterations
+    out = Path(config.out)
     stages = StageLog(say=lambda line: print(f"bench frames: {line}"))
     subject = out / "subject"
     if not subject.exists():
         with stages.stage("write subject"):
-            write_subject(subject, frames, args.size)
+            write_subject(subject, frames, config.size)
     with stages.stage("train"):
         train(subject, out / "run", preset("quick", iterations=iterations, checkpoint_every=iterations),
               progress=False)
-    return {"target": "frames", "machine": machine(), "frames": frames, "size": args.size, "iterations": iterations,
+    return {"target": "frames", "machine": machine(), "frames": frames, "size": config.size, "iterations": iterations,
             "stages": {s.name: {"seconds": round(s.seconds, 1), "peak_rss_mib": round(mib(s.peak_rss), 1)}
                        for s in stages.stages},
             "process_peak_rss_mib": round(mib(peak_rss_bytes()), 1)}

@@ -17,46 +17,85 @@ their run folder is complete, so a rerun only evaluates.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from trioman.bench.common import batched, best_time, mean_metrics
+from trioman.bench.common import batched, best_time, check_choice, check_int, check_names, check_path, mean_metrics
 from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
 from trioman.toolkit.examiner import auroc, pair_auroc
-from trioman.toolkit.model_training import FitConfig, examiner_batch, fit_examiner, fit_refiner, nchw, refiner_batch
+from trioman.toolkit.model_training import (
+    REFINER_SIZES,
+    FitConfig,
+    examiner_batch,
+    fit_examiner,
+    fit_refiner,
+    nchw,
+    refiner_batch,
+)
 from trioman.toolkit.refiner import CONDITIONS, refiner_inputs
+from trioman.toolkit.refiner.backbones import registered_backbones
 from trioman.toolkit.triplets import TripletSet
 
 
-def bench_models(args: argparse.Namespace) -> dict:
-    corpus = Path(args.corpus)
-    ccfg = CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size)
-    variants = [v for v in args.baseline_frames.split(",") if v]
+@dataclass(frozen=True)
+class ModelsBenchConfig:
+    out: str | Path = "out/bench"  # the report folder: the runs go in out/runs, the score figure beside the report
+    corpus: str | Path = "out/corpus"  # the corpus folder, built when absent
+    subjects: int = 10  # training subjects when building the corpus
+    heldout: int = 2  # held-out subjects when building the corpus
+    size: int = 128  # the corpus's image side, pixels, when building it
+    refiner_steps: int = 1000  # Refiner training steps per condition
+    refiner_size: str = "compact"  # the Refiner's widths (toolkit.model_training.REFINER_SIZES)
+    backbone: str = "scratch"  # the Refiner's backbone ("scratch" or "sd-turbo")
+    pretrained: str | Path | None = None  # a local SD-Turbo folder for backbone "sd-turbo" (never downloaded)
+    crop: int = 64  # Refiner training crop side, pixels
+    examiner: str = "examiner_nano"  # the Examiner's config name
+    examiner_steps: int = 1000  # Examiner training steps
+    batch: int = 4  # training batch size of both models
+    baseline_frames: tuple[str, ...] = ("all",)  # corpus variants of the coarse frames; each but "all" adds a tex+geo Refiner
+
+    def __post_init__(self) -> None:
+        check_path(self, "out")
+        check_path(self, "corpus")
+        check_path(self, "pretrained", optional=True)
+        for name in ("subjects", "heldout", "size", "refiner_steps", "crop", "examiner_steps", "batch"):
+            check_int(self, name)
+        check_choice(self, "refiner_size", REFINER_SIZES)
+        check_choice(self, "backbone", registered_backbones())
+        if not isinstance(self.examiner, str) or not self.examiner:
+            raise ValueError(f"examiner: expected an Examiner config name, got {self.examiner!r}")
+        check_names(self, "baseline_frames", empty=True)
+
+
+def bench_models(config: ModelsBenchConfig) -> dict:
+    corpus = Path(config.corpus)
+    ccfg = CorpusConfig(train_subjects=config.subjects, heldout_subjects=config.heldout, size=config.size)
+    variants = list(config.baseline_frames)
     if not (corpus / CORPUS_JSON).is_file():
         build_corpus(corpus, ccfg)
     for v in variants:  # coarse frames from baselines trained on a subset: built on demand
         if v != "all":
             build_corpus(corpus, dataclasses.replace(ccfg, baseline_frames=v))
-    out = Path(args.out)
+    out = Path(config.out)
     runs = out / "runs"
-    fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop)
-    backbone = {"backbone": getattr(args, "backbone", "scratch"), "pretrained": getattr(args, "pretrained", None)}
+    fit = FitConfig(steps=config.refiner_steps, batch=config.batch, crop=config.crop)
+    backbone = {"backbone": config.backbone, "pretrained": None if config.pretrained is None else str(config.pretrained)}
     tag = "" if backbone["backbone"] == "scratch" else "_" + backbone["backbone"].replace("-", "_")  # its own run folders
     refiners, infos = {}, {}
     for cond in CONDITIONS:
         refiners[cond], infos[f"refiner_{cond}"] = fit_refiner(corpus, runs / f"refiner_{cond.replace('+', '_')}{tag}", cond, fit,
-                                                               args.refiner_size, **backbone)
+                                                               config.refiner_size, **backbone)
     for v in variants:
         if v != "all":
             key = f"refiner_tex+geo_{v}"
             refiners[key], infos[key] = fit_refiner(corpus, runs / f"refiner_tex_geo_{v}{tag}", "tex+geo",
-                                                    dataclasses.replace(fit, baseline_frames=v), args.refiner_size, **backbone)
-    examiner, infos["examiner"] = fit_examiner(corpus, runs / "examiner", args.examiner,
-                                               FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None))
+                                                    dataclasses.replace(fit, baseline_frames=v), config.refiner_size, **backbone)
+    examiner, infos["examiner"] = fit_examiner(corpus, runs / "examiner", config.examiner,
+                                               FitConfig(steps=config.examiner_steps, batch=config.batch, lr=3e-4, crop=None))
 
     test = TripletSet.load(triplet_paths(corpus)["heldout"]).evaluation("test")
     tb = refiner_batch(test)

@@ -6,19 +6,30 @@ avatars."""
 
 from __future__ import annotations
 
-import argparse
 import time
 import tracemalloc
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from trioman.bench.common import best_time, machine, peak_rss_mib
+from trioman.bench.common import best_time, check_int, check_path, machine, peak_rss_mib
 from trioman.runtime.render import rasterize as rasterize_numpy
 from trioman.runtime.render._reference import rasterize_reference
 from trioman.toolkit.render import rasterize as rasterize_torch
 
 KEYS = ("means", "quats", "scales", "opacities", "colors")
+
+
+@dataclass(frozen=True)
+class RenderBenchConfig:
+    size: int = 256  # image side, pixels: the renderers run at it and at twice it, the oracle at half (at most 128)
+    avatar_run: str | Path | None = None  # a trained run folder (None: the untrained default avatar)
+
+    def __post_init__(self) -> None:
+        check_int(self, "size", 2)
+        check_path(self, "avatar_run", optional=True)
 
 
 def avatar_scene(avatar_run: str | None = None, avatar_cfg=None) -> dict:
@@ -137,15 +148,15 @@ def stage_profile(scenes: dict[str, dict], sizes: tuple[int, ...], repeats: int 
     return rows
 
 
-def bench_render(args: argparse.Namespace) -> dict:
-    """The report of ``trioman bench render`` (--avatar-run, else the untrained default avatar) at --size and
-    twice it, and the stage profile on the default, quick and full avatars (untrained)."""
+def bench_render(config: RenderBenchConfig) -> dict:
+    """The report of ``trioman bench render`` (``config.avatar_run``, else the untrained default avatar) at
+    ``config.size`` and twice it, and the stage profile on the default, quick and full avatars (untrained)."""
     from trioman.toolkit.train.config import preset
 
     report = {"target": "render", "machine": machine(), "torch_threads": torch.get_num_threads()}
-    sizes = (args.size, 2 * args.size)
-    scene = avatar_scene(args.avatar_run)
-    report.update(bench_renderers(scene, sizes, oracle_size=min(128, args.size // 2)))
+    sizes = (config.size, 2 * config.size)
+    scene = avatar_scene(None if config.avatar_run is None else str(config.avatar_run))
+    report.update(bench_renderers(scene, sizes, oracle_size=min(128, config.size // 2)))
     scenes = {"default": scene, **{name: avatar_scene(None, preset(name).avatar) for name in ("quick", "full")}}
     report["stages"] = stage_profile(scenes, sizes)
     report["peak_rss_mib"] = round(peak_rss_mib(), 1)

@@ -10,19 +10,38 @@ under DDP's ``no_sync`` (what the overlap with backward leaves exposed)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import socket
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-from trioman.bench.common import machine
+from trioman.bench.common import check_int, machine
 
 WORLDS = (1, 2)
 PREDICT_GPUS = 8
 WARMUP = 2  # untimed steps before every timed series
+
+
+@dataclass(frozen=True)
+class ScaleBenchConfig:
+    size: int = 64  # the random triplets' image side, pixels
+    batch: int = 4  # samples per process and step
+    iterations: int = 20  # timed steps per series
+    seed: int = 0  # the Refiner's initial weights and the triplets
+
+    def __post_init__(self) -> None:
+        from trioman.toolkit.model_training import REFINER_SIZES
+        from trioman.toolkit.refiner import RefinerConfig
+
+        for name in ("size", "batch", "iterations"):
+            check_int(self, name)
+        check_int(self, "seed", 0)
+        step = RefinerConfig(conditions="tex+geo", **REFINER_SIZES["compact"]).total_downsample
+        if self.size % step:
+            raise ValueError(f"size: must be a multiple of {step} (the compact Refiner's downsampling), got {self.size}")
 
 
 def _ring_volume(n: int) -> float:
@@ -101,15 +120,15 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def bench_scale(args: argparse.Namespace) -> dict:
+def bench_scale(config: ScaleBenchConfig) -> dict:
     import torch
 
-    size, batch, steps = args.size, args.batch, args.iterations or 20
+    size, batch, steps = config.size, config.batch, config.iterations
     runs = {}
     with tempfile.TemporaryDirectory() as tmp:
         for world in WORLDS:
             result = Path(tmp) / f"{world}.json"
-            torch.multiprocessing.spawn(_worker, args=(world, _free_port(), size, batch, steps, args.seed, str(result)),
+            torch.multiprocessing.spawn(_worker, args=(world, _free_port(), size, batch, steps, config.seed, str(result)),
                                         nprocs=world)
             runs[world] = json.loads(result.read_text())
     rows = [{"processes": w, "global_batch": w * batch, "step_s": r["step_s"], "samples_per_s": w * batch / r["step_s"]}

@@ -28,21 +28,33 @@ worst error and whether every output stayed finite.
 
 from __future__ import annotations
 
-import argparse
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from trioman.bench.common import machine
+from trioman.bench.common import check_int, check_path, machine
 
 KEYS = ("means", "quats", "scales", "opacities", "colors", "viewmat", "K")
 ANGLES = {"pi - 1e-3": math.pi - 1e-3, "pi - 1e-6": math.pi - 1e-6, "pi": math.pi, "pi + 1e-6": math.pi + 1e-6,
           "1e-4": 1e-4, "1e-8": 1e-8, "1e-12": 1e-12, "0": 0.0}
 MODEL_SIZE = 32  # px, the tiny Refiner's and Examiner's input side
 LR_FACTORS = (1, 100)  # the training cases' learning rates, times each loop's default
+
+
+@dataclass(frozen=True)
+class StabilityBenchConfig:
+    out: str | Path = "out/bench"  # the report folder: the training cases' runs and the exported models go in it
+    seeds: int = 2  # extreme scenes drawn
+    iterations: int = 30  # training steps of each training case
+
+    def __post_init__(self) -> None:
+        check_path(self, "out")
+        check_int(self, "seeds")
+        check_int(self, "iterations")
 
 
 def _row(group: str, case: str, method: str, error: float, finite: bool | None, note: str = "", **extra: Any) -> dict:
@@ -431,14 +443,13 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
     return rows
 
 
-def bench_stability(args: argparse.Namespace) -> dict:
+def bench_stability(config: StabilityBenchConfig) -> dict:
     """The report of ``trioman bench stability``."""
     import torch
 
-    out = Path(args.out)
+    out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
-    seeds = args.seeds or 2
-    iterations = args.iterations or 30
+    seeds, iterations = config.seeds, config.iterations
     rows = (renderer_rows(seeds) + gradient_rows(seeds) + model_rows(out) + rotation_rows() + fk_rows()
             + avatar_training_rows(out, iterations) + model_training_rows(out, iterations))
     return {"target": "stability", "machine": machine(), "torch_threads": torch.get_num_threads(), "rows": rows,

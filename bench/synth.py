@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 
-from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.common import check_int, machine, peak_rss_mib
 
 
-def bench_synth(args: argparse.Namespace) -> dict:
+@dataclass(frozen=True)
+class SynthBenchConfig:
+    seed: int = 0  # the subject's seed
+    size: int = 256  # image side, pixels
+    frames: int = 300  # subject frames
+
+    def __post_init__(self) -> None:
+        check_int(self, "seed", 0)
+        check_int(self, "size")
+        check_int(self, "frames")
+
+
+def bench_synth(config: SynthBenchConfig) -> dict:
     import shutil
     import tempfile
     import time
@@ -17,7 +29,7 @@ def bench_synth(args: argparse.Namespace) -> dict:
     from trioman.toolkit.synth.subject import SynthConfig, build_body, plan_sequences, synthesize_subject
     from trioman.toolkit.synth.texture import bake_texture
 
-    cfg = SynthConfig(seed=args.seed, size=args.size, frames=args.frames or 300)
+    cfg = SynthConfig(seed=config.seed, size=config.size, frames=config.frames)
     work = Path(tempfile.mkdtemp(prefix="trioman-bench-"))
     try:
         t0 = time.perf_counter()

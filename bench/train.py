@@ -14,19 +14,48 @@ own, optimizer) at the subject's size and at half of it, at 1 and 2 torch thread
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.common import check_int, check_names, check_path, machine, peak_rss_mib
 
 HOLE_SIZE = 512  # animate's default output side
 HOLE_ALPHA = 0.5
 STAGES = ("triplane + MLPs", "posing (LBS)", "projection", "tile binning", "rasterizer forward", "loss",
           "rasterizer backward", "backward", "optimizer")  # the marks of one step (runtime.render.timing)
+
+
+@dataclass(frozen=True)
+class TrainBenchConfig:
+    out: str | Path = "out/bench"  # the report folder: the subject, the runs and the figures go in it
+    seed: int = 0  # the subject's seed
+    size: int = 256  # the subject's image side, pixels (the rasterizer and the step profile also run at half)
+    frames: int = 120  # subject frames
+    presets: tuple[str, ...] = ("quick", "full")  # the presets trained, each from scratch
+    iterations: int | None = None  # every preset's iterations (None: the preset's)
+    full_iterations: int | None = None  # the full preset's iterations when ``iterations`` is None (None: the preset's)
+    eval_every: int = 250  # iterations between the evaluations of both splits (the runs' checkpoint interval)
+    training: bool = True  # False: no preset trains; only the rasterizer timings and the step profile
+    repeats: int = 5  # timed steps of the step profile
+    threads: int | None = None  # the step profile's torch threads (None: 1 and 2)
+
+    def __post_init__(self) -> None:
+        from trioman.toolkit.train.config import PRESETS
+
+        check_path(self, "out")
+        check_int(self, "seed", 0)
+        check_int(self, "size", 2)
+        for name in ("frames", "eval_every", "repeats"):
+            check_int(self, name)
+        for name in ("iterations", "full_iterations", "threads"):
+            check_int(self, name, optional=True)
+        check_names(self, "presets", PRESETS)
+        if not isinstance(self.training, bool):
+            raise ValueError(f"training: must be a bool, got {self.training!r}")
 
 
 def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], threads: tuple[int, ...],
@@ -102,7 +131,7 @@ def plot_step_profile(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def train_presets(args: argparse.Namespace, out: Path) -> dict:
+def train_presets(config: TrainBenchConfig, out: Path) -> dict:
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
@@ -110,14 +139,14 @@ def train_presets(args: argparse.Namespace, out: Path) -> dict:
 
     subject_dir = out / "subject"
     if not (subject_dir / "subject.json").exists():
-        synthesize_subject(SynthConfig(seed=args.seed, size=args.size, frames=args.frames), subject_dir)
+        synthesize_subject(SynthConfig(seed=config.seed, size=config.size, frames=config.frames), subject_dir)
     results = {}
-    for name in args.presets.split(","):
-        overrides = {"checkpoint_every": args.eval_every}
-        if args.iterations:
-            overrides["iterations"] = args.iterations
-        elif name == "full" and args.full_iterations:
-            overrides["iterations"] = args.full_iterations
+    for name in config.presets:
+        overrides = {"checkpoint_every": config.eval_every}
+        if config.iterations:
+            overrides["iterations"] = config.iterations
+        elif name == "full" and config.full_iterations:
+            overrides["iterations"] = config.full_iterations
         cfg = preset(name, **overrides)
         run = out / f"run_{name}"
         curve = []
@@ -209,8 +238,9 @@ def plot_curves(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def bench_train(args: argparse.Namespace) -> dict:
-    """The report of ``trioman bench train``: the presets' curves (unless --no-training) and the rasterizer timings."""
+def bench_train(config: TrainBenchConfig) -> dict:
+    """The report of ``trioman bench train``: the presets' curves (unless not ``config.training``), the rasterizer
+    timings and the step profile."""
     import numpy as np
     import torch
 
@@ -219,13 +249,13 @@ def bench_train(args: argparse.Namespace) -> dict:
     from trioman.toolkit.avatar.model import AvatarConfig, GaussianAvatar
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 
-    out = Path(args.out)
+    out = Path(config.out)
     subject_dir = out / "subject"
     if not (subject_dir / "subject.json").exists():
-        synthesize_subject(SynthConfig(seed=args.seed, size=args.size, frames=args.frames or 120), subject_dir, overwrite=True)
-    report = {"target": "train", "machine": machine(), "size": args.size}
-    if not args.no_training:
-        report["presets"] = train_presets(args, out)
+        synthesize_subject(SynthConfig(seed=config.seed, size=config.size, frames=config.frames), subject_dir, overwrite=True)
+    report = {"target": "train", "machine": machine(), "size": config.size}
+    if config.training:
+        report["presets"] = train_presets(config, out)
         plot_curves(report["presets"], out / "train_psnr_vs_time.png")
     subject = load_subject(subject_dir)
     model = GaussianAvatar(subject.body, AvatarConfig())  # one Gaussian per vertex: the dense reference stays tractable
@@ -233,9 +263,9 @@ def bench_train(args: argparse.Namespace) -> dict:
     with torch.no_grad():
         g = model(torch.from_numpy(np.array(subject.poses[i])), torch.from_numpy(np.array(subject.trans[i]))).refined
     report["rasterizer"] = bench_rasterizer(g, torch.from_numpy(np.array(subject.viewmat[i])),
-                                            torch.from_numpy(np.array(subject.K[i])), sizes=(args.size // 2, args.size))
-    threads = (args.threads,) if args.threads else (1, 2)
-    report["step_profile"] = profile_step(subject_dir, "quick", (args.size // 2, args.size), threads, args.repeats)
+                                            torch.from_numpy(np.array(subject.K[i])), sizes=(config.size // 2, config.size))
+    threads = (config.threads,) if config.threads else (1, 2)
+    report["step_profile"] = profile_step(subject_dir, "quick", (config.size // 2, config.size), threads, config.repeats)
     plot_step_profile(report["step_profile"], out / "step_profile.png")
     report["peak_rss_mib"] = round(peak_rss_mib(), 1)
     return report

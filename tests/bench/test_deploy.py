@@ -1,7 +1,6 @@
 """`bench deploy` pieces on tiny trained models and a fabricated corpus: every variant row is measured
 against the torch fp32 reference, the table and the scatter plot are written."""
 
-import argparse
 import json
 
 import numpy as np
@@ -16,7 +15,7 @@ from trioman.export.onnx_models import export_onnx  # noqa: E402
 from trioman.bench.deploy import (  # noqa: E402
     bench_examiner_rows, bench_refiner_rows, bench_renderer_rows, deploy_markdown, scatter_plot,
 )
-from trioman.bench.models import bench_models  # noqa: E402
+from trioman.bench.models import ModelsBenchConfig, bench_models  # noqa: E402
 from trioman.toolkit.corpus import triplet_paths  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
@@ -25,10 +24,9 @@ from trioman.toolkit.triplets import TripletSet  # noqa: E402
 @pytest.fixture(scope="module")
 def trained(corpus, tmp_path_factory):  # noqa: F811
     out = tmp_path_factory.mktemp("bench_models")
-    args = argparse.Namespace(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(out), refiner_steps=2,
-                              examiner_steps=2, batch=2, examiner="examiner_nano", crop=16, refiner_size="compact",
-                              baseline_frames="all")
-    bench_models(args)
+    bench_models(ModelsBenchConfig(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(out), refiner_steps=2,
+                                   examiner_steps=2, batch=2, examiner="examiner_nano", crop=16, refiner_size="compact",
+                                   baseline_frames=("all",)))
     return {k: latest_checkpoint(out / "runs" / run) for k, run in (("refiner", "refiner_tex_geo"), ("examiner", "examiner"))}
 
 

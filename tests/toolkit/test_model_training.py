@@ -1,7 +1,6 @@
 """Refiner/Examiner training glue and `bench models` on a fabricated corpus (random triplet files: the
 glue, not the models' quality, is under test here; the models have their own tests)."""
 
-import argparse
 import dataclasses
 import json
 
@@ -11,7 +10,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.models import bench_models, models_markdown  # noqa: E402
+from trioman.bench.models import ModelsBenchConfig, bench_models, models_markdown  # noqa: E402
 from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
 from trioman.toolkit.model_training import FitConfig, random_crop  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
@@ -75,17 +74,17 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
                  "--pairing", "paper"]) == 0
     info = json.loads((tmp_path / "exp" / "fit.json").read_text())
     assert info["fit"]["pairing"] == "paper" and info["config"]["dual_attention"] == "channel"
-    args = argparse.Namespace(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),
-                              refiner_steps=2, examiner_steps=2, batch=2, examiner="examiner_nano", crop=16,
-                              refiner_size="compact", baseline_frames="all")
-    r = bench_models(args)
+    config = ModelsBenchConfig(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),
+                               refiner_steps=2, examiner_steps=2, batch=2, examiner="examiner_nano", crop=16,
+                               refiner_size="compact", baseline_frames=("all",))
+    r = bench_models(config)
     assert r["heldout_test_frames"] == 3
     assert set(r["metrics"]) == {"coarse", "refined (none)", "refined (tex)", "refined (tex+geo)", "refined (warp)", "refined (warp+geo)"}
     assert all(np.isfinite(v) for m in r["metrics"].values() for v in m.values())
     assert 0 <= r["examiner_auroc_real_vs_coarse"] <= 1 and 0 <= r["examiner_auroc_real_vs_coarse_nearby"] <= 1 and (tmp_path / "bench" / "examiner_scores.png").is_file()
     assert "Examiner AUROC" in models_markdown(r) and "the paper's pairs" in models_markdown(r)
     assert r["examiner_selection"]["selected_step"] == 2 and "Examiner weights of step 2" in models_markdown(r)
-    again = bench_models(args)  # complete runs are reused, with the timings of the run that trained
+    again = bench_models(config)  # complete runs are reused, with the timings of the run that trained
     assert again["training"] == r["training"]
 
 

@@ -18,19 +18,22 @@ named in the report; nothing here is a timed test. Module contract (trioman/cli.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
-# target -> (module, report function, markdown function); each report function takes the parsed options
+# target -> (module, report function, markdown function, config class); the report function takes the target's
+# config (a frozen dataclass of the module, built by ``bench_config``), or the parsed options where the class is None
 TARGETS = {
-    "synth": ("trioman.bench.synth", "bench_synth", "synth_markdown"),
-    "train": ("trioman.bench.train", "bench_train", "train_markdown"),
-    "render": ("trioman.bench.render", "bench_render", "render_markdown"),
-    "models": ("trioman.bench.models", "bench_models", "models_markdown"),
-    "deploy": ("trioman.bench.deploy", "bench_deploy", "deploy_markdown"),
-    "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown"),
-    "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown"),
-    "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown"),
-    "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown"),
+    "synth": ("trioman.bench.synth", "bench_synth", "synth_markdown", "SynthBenchConfig"),
+    "train": ("trioman.bench.train", "bench_train", "train_markdown", "TrainBenchConfig"),
+    "render": ("trioman.bench.render", "bench_render", "render_markdown", "RenderBenchConfig"),
+    "models": ("trioman.bench.models", "bench_models", "models_markdown", "ModelsBenchConfig"),
+    "deploy": ("trioman.bench.deploy", "bench_deploy", "deploy_markdown", "DeployBenchConfig"),
+    "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown", None),
+    "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown", "FramesBenchConfig"),
+    "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown", "StabilityBenchConfig"),
+    "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown", "ScaleBenchConfig"),
 }
+LISTS = ("presets", "baseline_frames")  # comma-separated options, tuples of names in the configs
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,18 +93,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
 
 
+def bench_config(cls: type, args: argparse.Namespace):
+    """A target's config ``cls`` from the parsed options: each field from the option of its name (a comma-separated
+    list split into a tuple, empty names dropped; ``training`` is not --no-training); an option left unset (None)
+    keeps the field's default."""
+    values = {}
+    for field in dataclasses.fields(cls):
+        value = not args.no_training if field.name == "training" else getattr(args, field.name)
+        if value is not None:
+            values[field.name] = tuple(v for v in value.split(",") if v) if field.name in LISTS else value
+    return cls(**values)
+
+
 def run(args: argparse.Namespace) -> int:
     import importlib
 
     from trioman.bench.common import machine, peak_rss_mib, write_report
 
-    if args.size is None:
-        args.size = {"models": 128, "ablation": 128, "frames": 1024, "scale": 64}.get(args.target, 256)
-    if args.heldout is None:
-        args.heldout = 3 if args.target == "ablation" else 2
-    module, bench, markdown = TARGETS[args.target]
+    module, bench, markdown, config = TARGETS[args.target]
     module = importlib.import_module(module)
-    report = getattr(module, bench)(args)
+    if config is None:  # ablation: the parsed options themselves, with its --size and --heldout defaults
+        if args.size is None:
+            args.size = 128
+        if args.heldout is None:
+            args.heldout = 3
+        report = getattr(module, bench)(args)
+    else:
+        report = getattr(module, bench)(bench_config(getattr(module, config), args))
     if args.target in ("models", "deploy", "ablation"):
         report["machine"], report["peak_rss_mib"] = machine(), peak_rss_mib()
     md = getattr(module, markdown)(report)

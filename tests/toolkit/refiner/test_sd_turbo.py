@@ -202,14 +202,12 @@ def test_export_over_the_protobuf_limit_writes_external_data(folder, tmp_path, m
 
 
 def test_bench_models_with_the_sd_turbo_backbone(folder, corpus, tmp_path):  # noqa: F811
-    import argparse
+    from trioman.bench.models import ModelsBenchConfig, bench_models
 
-    from trioman.bench.models import bench_models
-
-    args = argparse.Namespace(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"), refiner_steps=1,
-                              examiner_steps=1, batch=2, examiner="examiner_nano", crop=32, refiner_size="compact",
-                              baseline_frames="all", backbone="sd-turbo", pretrained=str(folder))
-    r = bench_models(args)
+    r = bench_models(ModelsBenchConfig(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),
+                                       refiner_steps=1, examiner_steps=1, batch=2, examiner="examiner_nano", crop=32,
+                                       refiner_size="compact", baseline_frames=("all",), backbone="sd-turbo",
+                                       pretrained=str(folder)))
     assert r["refiner_backbone"] == "sd-turbo" and (tmp_path / "bench" / "runs" / "refiner_tex_geo_sd_turbo").is_dir()
     assert all(np.isfinite(v) for m in r["metrics"].values() for v in m.values()) and r["inference"]["refiner_tex+geo_ms"] > 0
 
