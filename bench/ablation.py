@@ -202,7 +202,7 @@ def condition_check(refiner_run: Path, heldout: list[Path], conditions: str = "t
     from trioman.bench.common import batched, mean_metrics
     from trioman.toolkit.model_training import nchw, refiner_batch
     from trioman.toolkit.refiner import load_refiner
-    from trioman.toolkit.train.checkpoint import latest_checkpoint
+    from trioman.toolkit.loops.checkpoint import latest_checkpoint
     from trioman.toolkit.triplets import TripletSet
 
     model = load_refiner(latest_checkpoint(refiner_run))
