@@ -13,7 +13,7 @@ Variants, per held-out subject (``VARIANTS``), all from the quick preset:
     GR_none/tex/tex+geo   + Refiner under each of the paper's conditions (--augment refined)
     GR_warp+geo     + Refiner refining the aligned reference, with the normal map (conditions warp+geo)
     GRk_warp+geo    the same, keeping the carried real pixels: the Refiner's output only where nothing was carried
-    GRE             + Refiner (warp+geo) & Examiner, best of 2 candidates (--augment examined; seeds)
+    GRE             + Refiner (warp+geo, carried pixels kept) & Examiner, best of 2 candidates (--augment examined; seeds)
     ceiling         the truth at every draw: the subject's own renderer (--augment truth), what a perfect Refiner gives
 
 Every augmented row is also reported as the share of the ceiling's gain over the control it recovers.
@@ -64,13 +64,13 @@ VARIANTS = (
 LEVERS = (("GRd_tex+geo", "refined", "tex+geo", False),)
 ALL_VARIANTS = VARIANTS + LEVERS
 # AugmentConfig settings of a variant beyond its mode and Refiner condition.
-SETTINGS = {"GRk_warp+geo": {"keep_carried": True}}
+SETTINGS = {"GRk_warp+geo": {"keep_carried": True}, "GRE": {"keep_carried": True}}
 LABELS = {
     "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
     "GR_none": "+ Refinement (without condition)", "GR_tex": "+ Refinement (only tex. condition)",
     "GR_tex+geo": "+ Generator & Refiner (tex.&geo.)", "GR_warp+geo": "+ Generator & Refiner (aligned ref.&geo.)",
     "GRk_warp+geo": "+ Generator & Refiner (aligned ref.&geo.), carried pixels kept",
-    "GRE": "+ Generator & Refiner (aligned ref.&geo.) & Examiner",
+    "GRE": "+ Generator & Refiner (aligned ref.&geo., carried pixels kept) & Examiner",
     "GRd_tex+geo": "+ Generator & Refiner (tex.&geo.), detail only (lever)",
     "aligned": "+ Generator, aligned real pixels (no Refiner)", "ceiling": "Ceiling: the truth at every draw",
 }
@@ -491,7 +491,7 @@ def _view_change(a: np.ndarray, b: np.ndarray) -> float:
 @torch.no_grad()
 def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, aligner, draws: int, seed: int) -> dict:
     """What the Examiner keeps (the GRE row's step): for ``draws`` training frames, two Generator candidates each,
-    refined by the warp+geo Refiner; the Examiner's pick against the truth. -> {"agreement": share of pairs where the
+    refined by the warp+geo Refiner with the carried pixels kept; the Examiner's pick against the truth. -> {"agreement": share of pairs where the
     pick is the candidate closer to the truth, "psnr_chosen" / "psnr_other": mean masked PSNR vs the truth,
     "view_chosen" / "view_other": mean camera change from the source frame (degrees), "pose_chosen" /
     "pose_other": mean summed joint-angle change (degrees), "score_gap": mean score difference}."""
@@ -515,7 +515,7 @@ def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, alig
         K = np.asarray(subj.K[i], np.float64)
         src = Source(int(p), (subj.image(i) * m + (1 - m) * bg).astype(np.float32), K, bg)
         made = make_pseudo_frames(cands, src, lambda c: render_candidate(avatar, c, torch.from_numpy(K.astype(np.float32)), W, H, bg),
-                                  PseudoConfig("examined"), body=subj.body, aligner=aligner, refiner=refiner, examiner=examiner)
+                                  PseudoConfig("examined", keep_carried=True), body=subj.body, aligner=aligner, refiner=refiner, examiner=examiner)
         quality = []
         for k, c in enumerate(cands):
             t, tm = truth_renderer.at_draw(i, c, K)

@@ -46,6 +46,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert cfg["train"]["augment"]["detail_sigma"] == 2.0
     cfg = json.loads((out / "runs" / "s02" / "GRk_warp_geo_s0" / "config.json").read_text())["train"]["augment"]
     assert cfg["keep_carried"] and cfg["refiner"].endswith("refiner_warp_geo")
+    assert json.loads((out / "runs" / "s02" / "GRE_s0" / "config.json").read_text())["train"]["augment"]["keep_carried"]
     for variant, mode in (("G", "coarse"), ("aligned", "aligned"), ("GR_tex", "refined"), ("GR_warp+geo", "refined"),
                           ("GRk_warp+geo", "refined"), ("GRE", "examined"),
                           ("GRd_tex+geo", "refined"), ("ceiling", "truth")):
@@ -63,7 +64,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     for v in ("baseline", "ceiling", "aligned"):
         assert f"| {LABELS[v]} | {mean[v]['psnr']:.2f} |" in md, v
     assert all(np.isfinite(mean[v]["psnr"]) for v in mean)
-    for text in ("Table 1", "Table 2", "+ Generator & Refiner (aligned ref.&geo.) & Examiner", "equal steps (control)", "paper 00028",
+    for text in ("Table 1", "Table 2", "+ Generator & Refiner (aligned ref.&geo., carried pixels kept) & Examiner", "equal steps (control)", "paper 00028",
                  "Ceiling (the truth at every draw) over the equal-steps control", "share of the ceiling's gain",
                  "Do the Refiners use their conditions", "| refined, true reference and normal map |", "ms per step",
                  "detail only (lever)", "Pseudo-GT against the truth: s02", "What the Examiner keeps"):
