@@ -1,16 +1,6 @@
-"""The demo (``trioman demo``): the whole pipeline on the embedded synthetic subject.
-
-synth -> train (quick preset) -> eval (test and train splits) -> export the avatar -> animate it with
-the runtime (numpy + onnxruntime, no torch), plus a turntable MP4 of the subject's posed mesh ->
-triplets of the trained avatar -> a small Refiner and Examiner trained on the subject's own training
-frames (a demo of the loop; ``trioman bench models`` trains them on a corpus of subjects) -> ONNX
-export (fp32 + int8) -> ``augment`` with the runtime -> an avatar trained with online augmentation of the
-kind that measured best, aligned pseudo-GT (``trioman train --augment aligned``: the avatar's renders at
-Generator draws with real pixels carried through the body mesh; docs/augmentation.md), evaluated on the
-test split like the first.
-
-Each stage prints one line as it ends: its name, wall time and peak resident memory; the run ends
-with where the outputs are, baseline vs augmented test PSNR and the overall peak.
+"""The demo (``trioman demo``, ``run_demo``): the whole pipeline on the embedded synthetic subject, from
+synthesis to an avatar trained with online augmentation; its stages, outputs and what it prints:
+docs/demo.md.
 """
 
 from __future__ import annotations

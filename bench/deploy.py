@@ -1,17 +1,5 @@
-"""``trioman bench deploy``: error against run time for what the runtime deploys, measured side by side
-in one run on this machine, as a markdown table and a scatter plot (x: ms per frame, y: error against
-the torch fp32 reference).
-
-- Renderer: the numpy runtime renderer (tile sizes, extent rule) and the brute-force float64 oracle
-  against the torch tiled rasterizer's forward (fp32, the reference); max abs RGB difference.
-- Refiner: torch eager (the reference), onnxruntime fp32 at each graph optimisation level, int8
-  (static QDQ per channel) and fp16, batch 1; max abs difference of the refined frame, and the task
-  metric (PSNR of the refined frame against the GT) on held-out test frames.
-- Examiner: the same with the score; max abs score difference and keep/drop agreement with torch.
-- The augment loop: time per frame by stage (generate, render, normal map, refine, examine, write)
-  from a ``trioman augment`` run on a held-out subject of the corpus with its exported baseline.
-
-Inputs come from ``trioman bench models`` (its corpus, its tex+geo Refiner and its Examiner runs).
+"""``trioman bench deploy``: error against run time for what the runtime deploys (renderer, exported
+models, the augment loop), as a markdown table and a scatter plot (``bench_deploy``).
 """
 
 from __future__ import annotations
@@ -187,6 +175,19 @@ def _augment_stages(corpus: Path, onnx_dir: Path, work: Path, frames: int) -> di
 
 
 def bench_deploy(config: DeployBenchConfig) -> dict:
+    """The report of ``trioman bench deploy``, measured side by side in one run:
+
+    - Renderer: the numpy runtime renderer (tile sizes, extent rule) and the brute-force float64 oracle
+      against the torch tiled rasterizer's forward (fp32, the reference); max abs RGB difference.
+    - Refiner: torch eager (the reference), onnxruntime fp32 at each graph optimisation level, int8
+      (static QDQ per channel) and fp16, batch 1; max abs difference of the refined frame, and the task
+      metric (PSNR of the refined frame against the GT) on held-out test frames.
+    - Examiner: the same with the score; max abs score difference and keep/drop agreement with torch.
+    - The augment loop: time per frame by stage (generate, render, normal map, refine, examine, write)
+      from a ``trioman augment`` run on a held-out subject of the corpus with its exported baseline.
+
+    Inputs come from ``trioman bench models`` (its corpus, its tex+geo Refiner and its Examiner runs).
+    """
     from trioman.export.onnx_models import export_onnx
     from trioman.toolkit.corpus import triplet_paths
     from trioman.toolkit.loops.checkpoint import model_checkpoint

@@ -1,18 +1,5 @@
 """``trioman bench models``: the Refiner and Examiner trained on a synthetic corpus and evaluated on
-held-out subjects' test frames (novel poses and views), as in the paper (train on some subjects,
-evaluate on others).
-
-- Refiner, for conditions none / tex / tex+geo (the paper's Table 2) and warp / warp+geo: PSNR/SSIM (masked protocol and
-  unmasked) of the coarse render and of the refined coarse view against the GT. The texture reference
-  of a test frame is the training frame that sees the body from the closest direction.
-- Examiner: AUROC of real (I^T, reference) against coarse (I_c^T, reference) pairs, with two
-  references: the nearest-view training frame (as for the Refiner; another pose and sequence) and a
-  real frame T+k of the same sequence (the paper's pairs); and the density of its scores for GT
-  frames and for frames refined under each condition (the paper's Examiner figure).
-- Wall time of each training run and inference time per frame.
-
-The corpus is built first when absent (``trioman synth-corpus``); trained models are reused when
-their run folder is complete, so a rerun only evaluates.
+held-out subjects' test frames (novel poses and views), as in the paper (``bench_models``).
 """
 
 from __future__ import annotations
@@ -72,6 +59,20 @@ class ModelsBenchConfig:
 
 
 def bench_models(config: ModelsBenchConfig) -> dict:
+    """The report of ``trioman bench models``:
+
+    - Refiner, for conditions none / tex / tex+geo (the paper's Table 2) and warp / warp+geo: PSNR/SSIM (masked protocol and
+      unmasked) of the coarse render and of the refined coarse view against the GT. The texture reference
+      of a test frame is the training frame that sees the body from the closest direction.
+    - Examiner: AUROC of real (I^T, reference) against coarse (I_c^T, reference) pairs, with two
+      references: the nearest-view training frame (as for the Refiner; another pose and sequence) and a
+      real frame T+k of the same sequence (the paper's pairs); and the density of its scores for GT
+      frames and for frames refined under each condition (the paper's Examiner figure).
+    - Wall time of each training run and inference time per frame.
+
+    The corpus is built first when absent (``trioman synth-corpus``); trained models are reused when
+    their run folder is complete, so a rerun only evaluates.
+    """
     corpus = Path(config.corpus)
     ccfg = CorpusConfig(train_subjects=config.subjects, heldout_subjects=config.heldout, size=config.size)
     variants = list(config.baseline_frames)

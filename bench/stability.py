@@ -1,29 +1,5 @@
-"""``trioman bench stability``: the numerical-stability checks as one report, a row per case with its
-worst error and whether every output stayed finite.
-
-- Renderers: the numpy runtime renderer and the torch rasterizer (float32) against the float64 oracle
-  (trioman.runtime.render._reference) on extreme scenes: scales 1e-6..1e2 m with anisotropy 1e6, huge
-  faint Gaussians and needles from 5 cm in front of the camera (``bench.scenes.extreme_scene``), half the
-  Gaussians behind the camera, opacities at 1/255 and at 1, and a scene 1e4 times larger seen from 1e4
-  times farther. Error: max abs difference of RGB and alpha over the image.
-- Refiner and Examiner: tiny models (``tiny_models``: the arithmetic, not the capacity, is under test)
-  with randomised weights on extreme images (constant black, white and 1e-8, uniform noise, one bright
-  pixel, a one-pixel checkerboard, saturated noise, saturated colour bars): the torch models in float32
-  against float64, and their ONNX variants as ``trioman export onnx`` writes them (fp32, fp16, int8) run
-  by the runtime, fp32 against torch float32 and fp16/int8 against fp32. Error: max abs difference of
-  the refined images, of the scores.
-- Rotations and FK + LBS: axis-angle -> matrix (numpy float64 and float32, torch float32) against scipy's
-  matrix exponential in float64 at angles near pi, at pi and tiny; the skinning transforms of a chain of
-  joints all rotated by those angles (numpy and torch) against the chain composed from the exponentials.
-  Error: max abs difference of the matrix entries (and of the translations, metres, for FK).
-- Training: the avatar loop (quick preset, a small generated subject), the Refiner and the Examiner
-  loops (the tiny models, synthetic frames) at their default learning rates and at 100x them, with a
-  checkpoint every step. Error: the largest finite loss of the steps that updated; finite: the weights
-  stayed finite; each row also counts the steps the non-finite guard skipped and gives the message of a
-  run that stopped (docs/design.md, "Conventions": training loops).
-
-``--size`` scales nothing here; ``--iterations`` is the training cases' steps (default 30) and
-``--seeds`` the extreme scenes drawn (default 2).
+"""``trioman bench stability``: the numerical-stability checks as one report (``bench_stability``): renderers,
+gradients, rotations and FK + LBS, the Refiner and Examiner and their ONNX files, the training loops.
 """
 
 from __future__ import annotations
@@ -444,7 +420,31 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
 
 
 def bench_stability(config: StabilityBenchConfig) -> dict:
-    """The report of ``trioman bench stability``."""
+    """The report of ``trioman bench stability``: a row per case with its worst error and whether every output
+    stayed finite.
+
+    - Renderers: the numpy runtime renderer and the torch rasterizer (float32) against the float64 oracle
+      (trioman.runtime.render._reference) on extreme scenes: scales 1e-6..1e2 m with anisotropy 1e6, huge
+      faint Gaussians and needles from 5 cm in front of the camera (``bench.scenes.extreme_scene``), half the
+      Gaussians behind the camera, opacities at 1/255 and at 1, and a scene 1e4 times larger seen from 1e4
+      times farther. Error: max abs difference of RGB and alpha over the image.
+    - Refiner and Examiner: tiny models (``tiny_models``: the arithmetic, not the capacity, is under test)
+      with randomised weights on extreme images (constant black, white and 1e-8, uniform noise, one bright
+      pixel, a one-pixel checkerboard, saturated noise, saturated colour bars): the torch models in float32
+      against float64, and their ONNX variants as ``trioman export onnx`` writes them (fp32, fp16, int8) run
+      by the runtime, fp32 against torch float32 and fp16/int8 against fp32. Error: max abs difference of
+      the refined images, of the scores.
+    - Rotations and FK + LBS: axis-angle -> matrix (numpy float64 and float32, torch float32) against scipy's
+      matrix exponential in float64 at angles near pi, at pi and tiny; the skinning transforms of a chain of
+      joints all rotated by those angles (numpy and torch) against the chain composed from the exponentials.
+      Error: max abs difference of the matrix entries (and of the translations, metres, for FK).
+    - Training: the avatar loop (quick preset, a small generated subject), the Refiner and the Examiner
+      loops (the tiny models, synthetic frames) at their default learning rates and at 100x them, with a
+      checkpoint every step. Error: the largest finite loss of the steps that updated; finite: the weights
+      stayed finite; each row also counts the steps the non-finite guard skipped and gives the message of a
+      run that stopped (docs/design.md, "Conventions": training loops).
+    ``config.iterations`` is the training cases' steps and ``config.seeds`` the extreme scenes drawn.
+    """
     import torch
 
     out = Path(config.out)

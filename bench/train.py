@@ -1,15 +1,5 @@
 """``trioman bench train``: avatar quality against training time, per preset, on one synthetic subject,
-and where the time of one training step goes.
-
-Each preset trains from scratch; at every checkpoint the training and test splits are evaluated
-(test = novel poses and views), outside the training clock. The finished avatar is also rendered at
-``HOLE_SIZE`` px, where gaps between Gaussians show as holes: the share of the (upsampled, eroded) body
-mask the render leaves below ``HOLE_ALPHA`` opacity is reported. Writes train.md, train.json,
-train_psnr_vs_time.png and render_<preset>_<size>.png.
-
-The step profile (:func:`profile_step`) times the stages of one quick-preset step (the avatar's triplane and
-MLPs, posing, projection, tile binning, rasterizer forward, loss, backward with the rasterizer's share on its
-own, optimizer) at the subject's size and at half of it, at 1 and 2 torch threads: step_profile.png.
+and where the time of one training step goes (``bench_train``).
 """
 
 from __future__ import annotations
@@ -240,7 +230,16 @@ def plot_curves(results: dict, path: Path) -> None:
 
 def bench_train(config: TrainBenchConfig) -> dict:
     """The report of ``trioman bench train``: the presets' curves (unless not ``config.training``), the rasterizer
-    timings and the step profile."""
+    timings and the step profile.
+
+    Each preset trains from scratch; at every checkpoint the training and test splits are evaluated (test =
+    novel poses and views), outside the training clock. The finished avatar is also rendered at
+    ``HOLE_SIZE`` px, where gaps between Gaussians show as holes: the share of the (upsampled, eroded) body
+    mask the render leaves below ``HOLE_ALPHA`` opacity is reported. Writes train.md, train.json,
+    train_psnr_vs_time.png and render_<preset>_<size>.png. The step profile (:func:`profile_step`) times
+    the stages of one quick-preset step (the avatar's triplane and MLPs, posing, projection, tile binning,
+    rasterizer forward, loss, backward with the rasterizer's share on its own, optimizer) at the subject's
+    size and at half of it, at 1 and 2 torch threads: step_profile.png."""
     import numpy as np
     import torch
 

@@ -1,19 +1,6 @@
 """The geometry-aligned reference: real pixels of training frames carried through the body mesh to a
-Generator draw (docs/augmentation.md, "Pseudo-GT").
-
-For each pixel of the draw that the posed body mesh covers, the same surface point (face and
-barycentrics) is located on the body posed at a source frame, projected through that frame's camera
-and looked up in its image. A source pixel counts only where the point is the visible surface there
-(its depth within ``depth_tolerance`` of the source's own body depth), inside the source's person mask
-and facing the source camera (cosine >= ``min_cosine``); sources are fused per pixel, weighted by
-that cosine to the power ``angle_power``. Fitted poses are never exact, so with a coarse render of the
-draw the carried image is re-aligned to it by dense optical flow (OpenCV DIS, both directions); pixels
-whose flow is inconsistent or longer than ``max_flow`` of the image side are dropped.
-
-The draw's person silhouette is the body mesh's coverage plus what the source frame's mask holds beyond
-the source's own body silhouette (clothing, hair), carried with the displacement of the nearest body
-pixel, up to ``band`` of the image side off the body: the body's coverage alone on a subject whose
-clothing is painted on, the clothing too on a real capture.
+Generator draw (``Aligner``; the rules: docs/augmentation.md, "Pseudo-GT", "The aligned reference" and
+"Masks and weights"; the knobs: ``AlignConfig``).
 """
 
 from __future__ import annotations
@@ -133,7 +120,8 @@ def _remap(img: np.ndarray, x: np.ndarray, y: np.ndarray, nearest: bool = False)
 
 
 class Aligner:
-    """Carries real pixels of ``views`` to Generator draws through the body ``mesh`` (module doc)."""
+    """Carries real pixels of ``views`` to Generator draws through the body ``mesh`` (docs/augmentation.md,
+    "Pseudo-GT")."""
 
     def __init__(self, mesh: SkinnedMesh, views: SourceViews, cfg: AlignConfig | None = None) -> None:
         self.mesh, self.views, self.cfg = mesh, views, cfg or AlignConfig()
@@ -209,7 +197,8 @@ class Aligner:
 
     def _silhouette(self, own: int, body: np.ndarray, own_xy: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
         """Body mesh coverage, plus the own source frame's mask beyond its body carried off the body with the
-        nearest body pixel's displacement (module doc). [H, W] float32."""
+        nearest body pixel's displacement, up to ``band`` off the body: the body's coverage alone on a subject
+        whose clothing is painted on, the clothing too on a real capture. [H, W] float32."""
         H, W = body.shape
         if own_xy is None or not body.any():
             return body.astype(np.float32)

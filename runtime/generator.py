@@ -1,50 +1,6 @@
-"""The Generator's sampling (paper 3.2.3): Gaussian perturbations of a frame's pose and camera.
+"""The Generator (paper 3.2.3): Gaussian perturbations of a frame's pose and camera, ``sample``'s candidates.
 
-Pose. Every axis-angle component of joint j gets Delta ~ N(0, sigma_g^2), where g is the joint's
-group, and the new rotation is theta + Delta (the paper's theta + Delta theta). Groups come from
-joint names (``joint_group``): the name is split on ``.``, ``_``, ``-`` and digits into lower-case
-tokens and the first group in ``GROUPS`` order with a matching token wins, so every joint lands in
-exactly one group; names with no known token go to ``"other"``. Joint 0 (the kinematic root, whatever
-its name) is its own group ``"root"``: its global orientation. The root translation is kept.
-
-    group   tokens (Anny; SMPL-X)                                  sigma (rad)   max angle (rad)
-    root    joint 0                                                0.0           pi
-    hands   wrist, finger, metacarpal; hand, thumb, index, ...     0.10          1.6
-    head    head, eye, jaw, tongue and Anny's face bones           0.10          0.8
-    arms    clavicle, shoulder, upperarm, lowerarm; collar, elbow  0.15          2.5
-    legs    upperleg, lowerleg, foot, toe; hip, knee, ankle        0.08          2.0
-    torso   spine, pelvis, neck; chest                             0.05          0.6
-    other   anything else                                          0.05          0.6
-
-The root defaults to sigma 0: view changes come from the camera perturbation, and tilting the
-whole body about the root would lift it off (or sink it into) the ground. Arms get the largest
-sigma (the most varied and least self-occluding limbs), torso the smallest (a small spine
-rotation moves the whole upper body). Sigmas are per joint, so a chain accumulates them: Anny's arm
-has six arm joints (clavicle to lowerarm02, with twist bones), its spine five; the defaults are
-chosen for that (about 0.35 rad per axis at an Anny wrist) and are mild on SMPL-X's shorter chains.
-Every config number is capped at 1e6 (far beyond any useful sigma), so sigma * N(0, 1) never
-overflows.
-
-Clamp rule: a perturbed joint rotation of angle |theta + Delta| above
-``max(max_angle[g], |theta|)`` is scaled back onto that bound (same axis). The perturbation can
-thus never rotate a joint further than its group's limit, or than the input already was; zero
-sigma returns the input exactly, and any finite input with any sigma gives a finite pose.
-
-Camera. The camera is orbited rigidly about the subject's centre (``subject_center``: the centre of
-the bounding box of the frame's posed joints, from FK): azimuth Delta_a ~ N(0, sigma_a^2) about
-the world z axis (z-up world, positive = counter-clockwise seen from above, as in
-trioman.runtime.cameras), elevation Delta_e ~ N(0, sigma_e^2) about the horizontal axis
-perpendicular to the centre->camera direction, and distance scaled by exp(Delta_d),
-Delta_d ~ N(0, sigma_d^2). The camera's orientation turns with it, so a camera that looked at the
-centre keeps looking at it (the centre stays at the same pixel for any camera). Clamps: elevation
-in [-L, L] with L = max(max_elevation, |input elevation|) (away from the poles, never moving the
-input); |Delta_d| <= ln(max_distance_ratio); distance >= min(input distance, min_distance).
-Defaults: sigma_a = 0.5 rad (~29 deg), sigma_e = 0.15 rad, sigma_d = 0.1 (~10 %), max_elevation
-1.3 rad (~75 deg), max_distance_ratio 2, min_distance 0.3 m (well above the 0.01 m near plane).
-
-Zero sigmas return the input pose and trans exactly and the input camera up to rounding (1e-15).
-Randomness: one numpy Generator; ``sample`` draws per candidate the pose noise [J, 3] then the
-camera noise [3] (also when a sigma is 0), so the same seed gives the same bytes.
+The joint groups, sigmas, clamps and draw order: docs/design.md, "Generator (3.2.3)".
 """
 
 from __future__ import annotations
@@ -112,7 +68,7 @@ def _per_group(name: str, given: Mapping[str, float], defaults: Mapping[str, flo
 
 @dataclass(frozen=True)
 class GeneratorConfig:
-    """Sampling parameters (see the module doc for the defaults and the clamp rules).
+    """Sampling parameters (defaults and clamps: docs/design.md, "Generator (3.2.3)").
 
     ``pose_sigma`` and ``max_angle`` map group names (``GROUPS``) to radians; groups left out keep
     their defaults, so ``GeneratorConfig(pose_sigma={"arms": 0.3})`` changes the arms only.
@@ -170,7 +126,7 @@ class Candidate:
 
 
 def joint_group(name: str) -> str:
-    """The group of a non-root joint name (see the module doc); ``"other"`` when none matches."""
+    """The group of a non-root joint name (its tokens against ``GROUPS``); ``"other"`` when none matches."""
     tokens = set(re.split(r"[^a-z]+", name.lower()))
     for group in GROUPS[1:-1]:
         if tokens & _GROUP_TOKENS[group]:
@@ -230,7 +186,7 @@ def perturb_pose(
     rng: np.random.Generator,
     cfg: GeneratorConfig | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """theta + Delta theta with per-group Gaussian Delta, clamped (module doc). -> (pose [J, 3], trans [3])."""
+    """theta + Delta theta with per-group Gaussian Delta, clamped. -> (pose [J, 3], trans [3])."""
     cfg = cfg or GeneratorConfig()
     pose, trans = _check_frame(skeleton, pose, trans)
     noise, max_angle = _pose_noise(skeleton, rng, cfg)

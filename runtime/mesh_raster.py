@@ -1,44 +1,7 @@
-"""Vectorised numpy z-buffer triangle rasterizer (no torch).
+"""Vectorised numpy z-buffer triangle rasterizer (no torch): ``rasterize_mesh``, ``rasterize_screen``.
 
-Used to render the synthetic subjects' meshes, to bake textures in UV space and to render body
-normal maps. Conventions (docs/design.md): OpenCV camera (x right, y down, z forward), ``viewmat``
-world->camera [4, 4], ``K`` [3, 3] in pixels, pixel (i, j) has its centre at x = j + 0.5,
-y = i + 0.5; images are [H, W, ...] float32.
-
-Coverage rule. For a triangle with screen vertices p0, p1, p2 the edge functions are
-
-    e(a, b, p) = (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x)
-    w0 = e(p1, p2, p),  w1 = e(p2, p0, p),  w2 = e(p0, p1, p),  area = w0 + w1 + w2 = e(p0, p1, p2)
-
-evaluated in float64 exactly in this form. Each triangle is oriented by the sign of ``area`` (the
-three w are multiplied by sign(area), which is exact), and a pixel centre is covered when all three
-are >= 0, so pixels exactly on an edge are covered by both neighbours and the z-buffer decides.
-Zero-area (and non-finite-area) triangles cover nothing. Screen barycentrics are w_k / (w0+w1+w2).
-
-Winding. With y down, ``area > 0`` is a triangle that runs clockwise as displayed on screen; these
-are the *back faces*: a camera-facing triangle of an outward-oriented mesh (counter-clockwise seen
-from outside, normal (v1 - v0) x (v2 - v0) pointing out) projects with ``area < 0`` through an
-OpenCV camera. ``cull_backfaces=True`` keeps only triangles with ``area < 0``.
-
-Depth (float64, in exactly this form, so that fronto-parallel triangles at the same z tie exactly).
-With screen barycentrics b_k = w_k / (w0 + w1 + w2) and c_k = 1/z_k (perspective) or z_k (affine):
-
-    c = c_0 + b_1 (c_1 - c_0) + b_2 (c_2 - c_0);   depth = 1 / c (perspective) or c (affine)
-
-``perspective=True`` (rasterize_mesh, screen-space triangles of a pinhole camera) returns the
-perspective-correct barycentrics b'_k = b_k (1/z_k) depth; ``perspective=False`` (UV baking,
-orthographic) returns the screen barycentrics.
-
-Visibility. The nearest fragment (float64 depth) wins; on equal depth the lower face index wins, so
-the output is a deterministic function of the input, independent of the internal chunking.
-
-Implementation. Triangles are expanded into rows of their clipped pixel-centre bounding box, rows
-are grouped by (padded) width and evaluated as dense [rows, width] arrays; inside fragments are
-merged into a float64 z-buffer with ``np.minimum.at`` (depth, then face index). Barycentrics are
-recomputed once per covered pixel for the winning face at the end, with the same arithmetic. Work
-is done in batches of at most ``_MAX_CANDIDATES`` candidate pixels (a triangle larger than that is
-split into row bands), so besides the output-sized buffers the working memory is bounded (about
-150 MB) for any triangle size and image size.
+Renders the synthetic subjects' meshes, bakes textures in UV space and draws body normal maps. Coverage,
+winding, depth and tie rules: docs/design.md, "Mesh rasterizer".
 """
 
 from __future__ import annotations
@@ -140,7 +103,7 @@ def rasterize_screen(
     Pixel (i, j) has its centre at x = j + 0.5, y = i + 0.5. ``perspective=True`` interpolates 1/z
     (perspective-correct barycentrics and depth) and needs z > 0; ``perspective=False`` interpolates
     z and the barycentrics affinely (texture baking in UV space: pass z = 1), any finite z.
-    ``cull_backfaces`` drops triangles that are clockwise on screen (y down), see the module doc.
+    ``cull_backfaces`` drops triangles that are clockwise on screen (y down): docs/design.md, "Mesh rasterizer".
 
     Returns Fragments(face_id [H, W], bary [H, W, 3], depth [H, W]).
     Raises ValueError on NaN/Inf, wrong shapes, out-of-range face indices, bad width/height.
@@ -227,6 +190,11 @@ def _rasterize(
     perspective: bool,
     cull_backfaces: bool,
 ) -> Fragments:
+    """Triangles are expanded into rows of their clipped pixel-centre bounding box, grouped by (padded)
+    width and evaluated as dense [rows, width] arrays; inside fragments go into a float64 z-buffer with
+    ``np.minimum.at`` (depth, then face index), and the winning face's barycentrics are recomputed once per
+    covered pixel with the same arithmetic. At most ``_MAX_CANDIDATES`` candidate pixels are evaluated at
+    once (a larger triangle is split into row bands), which bounds the working memory."""
     W, H = width, height
     tri_buf = np.full(H * W, _NO_FACE, np.int32)  # winning triangle (index into `faces`)
     depth_buf = np.full(H * W, np.inf, np.float64)

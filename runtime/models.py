@@ -1,19 +1,8 @@
-"""The Refiner and the Examiner as ONNX models under onnxruntime (numpy + onnxruntime + OpenCV; no torch, no onnx).
+"""The Refiner and the Examiner as ONNX models under onnxruntime (numpy + onnxruntime + OpenCV; no torch, no
+onnx): ``RefinerModel``, ``ExaminerModel``, ``load_model``.
 
-The files come from ``trioman export onnx`` (docs/formats.md, "ONNX models"). Each carries its
-description in the ONNX ``metadata_props`` under keys prefixed ``trioman.``; the loaders require them
-and check them against the graph, so a stale or foreign model fails at load time with a
-``FormatError`` naming the file and the field, not later with a shape error inside onnxruntime.
-
-    RefinerModel(path).refine(coarse, reference, normal)   HWC [H, W, 3] / [B, H, W, 3] in [0, 1] -> refined coarse view
-    ExaminerModel(path).score(candidate, reference)        HWC images in [0, 1] -> similarity scores [B] in [0, 1]
-    ExaminerModel(path).choose(candidates, real, threshold) -> Choice(index, score, keep, scores)
-    load_model(path)                                        either of the two, by the file's ``trioman.kind``
-
-Images are RGB float32 in [0, 1]. ``run`` methods take the graph's own NCHW arrays. The Examiner
-normalises inside the graph (mean = std = 0.5), so callers never normalise. The Refiner needs its
-exported size exactly (it is convolutional but exported with static H and W); the Examiner resizes
-images of another size to its input size with ``cv2.INTER_AREA``.
+The files, their required ``trioman.*`` metadata and how the classes use them: docs/formats.md, "ONNX
+models" ("Metadata" and "Using them").
 """
 
 from __future__ import annotations

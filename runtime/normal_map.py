@@ -1,16 +1,5 @@
-"""Body normal maps: the Refiner's geometry condition I_g (paper 3.2.4 and 3.2.5).
-
-The posed body mesh is rasterized with trioman.runtime.mesh_raster (z-buffer, no back-face
-culling, one sample at each pixel centre: no anti-aliasing, so ``mask`` is exactly the
-rasterizer's coverage). Area-weighted vertex normals are interpolated with the perspective-correct
-barycentrics and normalised per pixel; where the interpolated normal vanishes (opposite normals of a
-two-sided sheet) the visible face's own normal is used instead.
-
-Encoding. Normals are expressed in CAMERA space with the common normal-map axes: x right, y up,
-z toward the camera (i.e. OpenCV camera axes with y and z negated), and stored as
-rgb = (n + 1) / 2, float32 [H, W, 3] in [0, 1]. A surface facing the camera is (0.5, 0.5, 1.0),
-one facing image-right is (1, 0.5, 0.5), one facing image-up is (0.5, 1, 0.5). Pixels not covered
-by the mesh hold ``background`` (default 0: black). Normals are not flipped toward the camera.
+"""Body normal maps: the Refiner's geometry condition I_g (paper 3.2.4 and 3.2.5), ``normal_map`` and
+``body_normal_map``. The encoding: docs/formats.md, "Triplets".
 """
 
 from __future__ import annotations
@@ -60,7 +49,13 @@ def normal_map(
     height: int,
     background: float | Sequence[float] = 0.0,
 ) -> NormalMap:
-    """Camera-space normal map of a world-space triangle mesh (encoding: module doc)."""
+    """Camera-space normal map of a world-space triangle mesh (encoding: docs/formats.md, "Triplets").
+
+    The mesh is rasterized with :func:`~trioman.runtime.mesh_raster.rasterize_mesh` (no back-face culling,
+    one sample at each pixel centre, no anti-aliasing, so ``mask`` is exactly its coverage). Area-weighted
+    vertex normals are interpolated with the perspective-correct barycentrics and normalised per pixel;
+    where the interpolated normal vanishes (opposite normals of a two-sided sheet) the visible face's own
+    normal is used instead. Pixels the mesh does not cover hold ``background``."""
     bg = _background(background)
     frags = rasterize_mesh(vertices, faces, viewmat, K, width, height)
     mask = frags.face_id >= 0

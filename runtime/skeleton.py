@@ -1,16 +1,7 @@
-"""Skeleton forward kinematics and linear blend skinning in numpy.
+"""Skeleton forward kinematics and linear blend skinning in numpy (``Skeleton``, ``SkinnedMesh``).
 
-Convention (SMPL-style, documented in docs/formats.md): a pose is axis-angle per joint [J, 3] in
-world-aligned axes plus a root translation [3]. With rest joints j and rotations R = R(pose):
-
-    G_0 = [R_0 | j_0 + trans],   G_c = G_parent(c) [R_c | j_c - j_parent(c)]   (world transforms)
-    A_c = G_c [I | -j_c]                                                       (skinning transforms)
-    v   = sum_k w_k A_{idx_k} v_rest                                           (LBS)
-
-so the zero pose with zero translation gives the rest (canonical) mesh exactly. A mesh may carry
-SMPL-style pose-corrective blend shapes P [9 (J-1), V, 3]; the rest vertices are then first moved by
-``sum_p f_p P_p`` with the pose feature f = flatten(R_j - I for j = 1..J-1) (row-major 3x3 per joint),
-which is still zero at the zero pose.
+The convention (FK, LBS, pose-corrective blend shapes): docs/formats.md, "Forward kinematics and skinning"
+and "``body.npz``".
 """
 
 from __future__ import annotations
@@ -141,7 +132,7 @@ class SkinnedMesh:
     skin_weights: np.ndarray  # [V, K] float32, rows sum to 1
     uvs: np.ndarray | None = None  # [T, 2] float32 texture coordinates (v up)
     uv_faces: np.ndarray | None = None  # [F, 3] int32 rows of uvs per face corner
-    pose_correctives: np.ndarray | None = None  # [9 (J-1), V, 3] float32 pose blend shapes (SMPL-X), see module doc
+    pose_correctives: np.ndarray | None = None  # [9 (J-1), V, 3] float32 pose blend shapes (SMPL-X), docs/formats.md
 
     def __post_init__(self) -> None:
         V = len(self.vertices)

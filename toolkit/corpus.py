@@ -1,20 +1,5 @@
-"""``trioman synth-corpus``: synthetic subjects for training and evaluating the Refiner and Examiner.
-
-The paper trains them on 17 X-Humans subjects and evaluates on 3 others; here: ``train_subjects``
-synthetic subjects (default 10) and ``heldout_subjects`` (default 2), each with a baseline avatar and
-a triplet file (toolkit/triplets.py). Baselines of training subjects are trained on ``baseline_frames``:
-"all" frames (the paper's choice: coarse frames carry reconstruction error only) or "subset" (every
-``subset_stride``-th frame, so most coarse frames carry real novel-pose error). Held-out subjects'
-baselines see their train split only, and evaluation uses their test frames (novel poses and views).
-
-Layout: DIR/corpus.json, DIR/subjects/sNN/, DIR/runs/<variant>/sNN/, DIR/triplets/<variant>/sNN.npz with
-variant = baseline_frames ("all" or "subset") for training subjects and "heldout" for held-out ones.
-Every piece is written atomically and skipped when already complete, so an interrupted build resumes.
-
-Sharded (``--shard I/N``, runtime/shards.py): job I builds the subjects at positions p with p % N == I
-(whole subjects: synthesis, baseline, triplets) and records itself in DIR/shards/; ``merge_corpus``
-checks every shard and each subject's files, writes corpus.json and removes DIR/shards, leaving the
-files of a one-process build (docs/scaling.md).
+"""``trioman synth-corpus``: synthetic subjects for training and evaluating the Refiner and Examiner, each with a
+baseline avatar and a triplet file (``build_corpus``; sharded jobs and ``merge_corpus``: docs/scaling.md).
 """
 
 from __future__ import annotations
@@ -118,7 +103,19 @@ def _write_corpus_json(root: Path, cfg: CorpusConfig) -> None:
 
 def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True, shard: Shard | None = None) -> Path:
     """Build the corpus in ``root`` (resumable). With ``shard``, only that shard's subjects and its
-    record in root/shards, no corpus.json (``merge_corpus`` writes it)."""
+    record in root/shards, no corpus.json (``merge_corpus`` writes it).
+
+    The paper trains the Refiner and Examiner on 17 X-Humans subjects and evaluates on 3 others; here:
+    ``cfg.train_subjects`` synthetic subjects and ``cfg.heldout_subjects``, each with a baseline avatar and a
+    triplet file (toolkit/triplets.py). Baselines of training subjects are trained on ``cfg.baseline_frames``:
+    "all" frames (the paper's choice: coarse frames carry reconstruction error only) or "subset" (every
+    ``subset_stride``-th frame, so most coarse frames carry real novel-pose error). Held-out subjects'
+    baselines see their train split only, and evaluation uses their test frames (novel poses and views).
+
+    Layout: root/corpus.json, root/subjects/sNN/, root/runs/<variant>/sNN/, root/triplets/<variant>/sNN.npz
+    with variant = ``baseline_frames`` for training subjects and "heldout" for held-out ones. Every piece is
+    written atomically and skipped when already complete, so an interrupted build resumes. A shard I/N builds
+    the whole subjects (synthesis, baseline, triplets) at positions p with p % N == I."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     for variant in (cfg.baseline_frames, "heldout"):

@@ -1,27 +1,5 @@
-"""LPIPS (Zhang et al. 2018, v0.1) with the AlexNet backbone, in plain torch (no torchvision).
-
-distance(x0, x1) = sum over the 5 AlexNet taps l of mean_{h,w} lin_l((n(f_l(x0)) - n(f_l(x1)))^2),
-where the inputs in [0, 1] are mapped to [-1, 1], then through the ScalingLayer
-((x - shift) / scale, shift [-.030, -.088, -.188], scale [.458, .448, .450]); f_l is the output of
-the l-th ReLU of AlexNet's ``features`` stack; n() divides each feature vector by its channel-wise
-L2 norm (+ 1e-10); lin_l is a learned 1x1 conv to one channel without bias. This is what
-``lpips.LPIPS(net='alex')(x0, x1, normalize=True)`` computes.
-
-Weights (nothing is downloaded; files from users are data, loaded with ``weights_only=True``):
-
-- backbone: torchvision's AlexNet ImageNet state dict (keys ``features.{0,3,6,8,10}.{weight,bias}``;
-  torchvision's download is named ``alexnet-owt-7be5be79.pth``; ``classifier.*`` keys are ignored),
-  or the ``net.slice{k}.{i}.*`` keys of a saved ``lpips.LPIPS`` module;
-- lin layers: the ``lpips`` PyPI package's ``lpips/weights/v0.1/alex.pth`` (keys
-  ``lin{k}.model.1.weight``, k = 0..4, shapes [1, C, 1, 1]); ``lin{k}.model.0.weight`` (no dropout),
-  ``lins.{k}.model.{0,1}.weight`` and this module's own ``lins.{k}.weight`` are accepted too.
-
-One combined file (e.g. ``LPIPS.state_dict()`` saved with torch.save, or a saved ``lpips.LPIPS``
-state dict) may hold both. A ``module.`` prefix and a ``{"state_dict": ...}`` wrapper are accepted.
-
-``find_lpips_weights()`` reads the folder named by the environment variable ``TRIOMAN_LPIPS_DIR``;
-it must hold ``alexnet.pth`` (or ``alexnet-owt-7be5be79.pth``) and ``alex.pth``, or one combined
-``lpips_alex.pth``. Unset -> None, so callers report ``NOT_FOUND_MESSAGE`` once and go on.
+"""LPIPS (Zhang et al. 2018, v0.1) with the AlexNet backbone, in plain torch (no torchvision): ``LPIPS``,
+and its weights read from local files (``load_lpips``; ``TRIOMAN_LPIPS_DIR``, nothing is downloaded).
 """
 
 from __future__ import annotations
@@ -69,6 +47,12 @@ __all__ = [
 class LPIPS(nn.Module):
     """LPIPS-AlexNet v0.1. ``forward(pred, gt)`` with [B, 3, H, W] images in [0, 1] -> distance [B].
 
+    distance(x0, x1) = sum over the 5 AlexNet taps l of mean_{h,w} lin_l((n(f_l(x0)) - n(f_l(x1)))^2), where the
+    inputs in [0, 1] are mapped to [-1, 1], then through the ScalingLayer ((x - ``SHIFT``) / ``SCALE``); f_l is
+    the output of the l-th ReLU of AlexNet's ``features`` stack; n() divides each feature vector by its
+    channel-wise L2 norm (+ 1e-10); lin_l is a learned 1x1 conv to one channel without bias: what
+    ``lpips.LPIPS(net='alex')(x0, x1, normalize=True)`` computes.
+
     A fresh ``LPIPS()`` has random weights (for tests); use :meth:`from_files` / :func:`load_lpips`.
     The module is in eval mode and its parameters are frozen: no autograd graph is built unless an
     input requires grad, in which case the distance is differentiable w.r.t. the inputs (as a loss).
@@ -108,7 +92,7 @@ class LPIPS(nn.Module):
 
     @classmethod
     def from_dir(cls, folder: str | os.PathLike, device: str | torch.device = "cpu") -> LPIPS:
-        """Build from a folder laid out as for ``TRIOMAN_LPIPS_DIR`` (see the module docstring)."""
+        """Build from a folder laid out as for ``TRIOMAN_LPIPS_DIR`` (:func:`find_lpips_weights`)."""
         paths = find_lpips_weights(folder)
         assert paths is not None
         return cls.from_files(paths.backbone, paths.lin, device=device)
@@ -225,7 +209,16 @@ def _take(sd: dict, candidates: tuple[str, ...], shape: tuple[int, ...], path: P
 def load_lpips_state_dict(
     backbone_path: str | os.PathLike, lin_path: str | os.PathLike | None = None
 ) -> dict[str, torch.Tensor]:
-    """Read and validate the weight files -> a state dict in :class:`LPIPS`' own key layout."""
+    """Read and validate the weight files -> a state dict in :class:`LPIPS`' own key layout.
+
+    Files are data, loaded with ``weights_only=True``. Backbone: torchvision's AlexNet ImageNet state dict
+    (keys ``features.{0,3,6,8,10}.{weight,bias}``, torchvision's download ``alexnet-owt-7be5be79.pth``;
+    ``classifier.*`` is ignored) or the ``net.slice{k}.{i}.*`` keys of a saved ``lpips.LPIPS`` module. Lin
+    layers: the ``lpips`` package's ``lpips/weights/v0.1/alex.pth`` (keys ``lin{k}.model.1.weight``,
+    k = 0..4, shapes [1, C, 1, 1]); ``lin{k}.model.0.weight`` (no dropout), ``lins.{k}.model.{0,1}.weight``
+    and this module's own ``lins.{k}.weight`` are accepted too. One combined file (``lin_path`` None: e.g. a
+    saved ``LPIPS.state_dict()`` or ``lpips.LPIPS`` state dict) may hold both. A ``module.`` prefix and a
+    ``{"state_dict": ...}`` wrapper are accepted."""
     bpath = Path(backbone_path)
     bsd = _load_file(bpath, "backbone" if lin_path is not None else "combined")
     if lin_path is None:

@@ -1,31 +1,8 @@
 """Image metrics (torch): PSNR, SSIM, compositing, and the masked evaluation protocol.
 
-Tensors are batched NCHW floats in [0, 1] (``[B, C, H, W]``); every metric returns one value per
-image (``[B]``) and is differentiable, so ``1 - ssim(...)`` serves as a training loss.
-
-Evaluation protocol (ExAvatar's NeuMan / X-Humans evaluation, docs/design.md, "Evaluation protocol"):
-the GT mask is applied to BOTH prediction and GT on a white background (:func:`composite_on`), then
-PSNR and SSIM with data_range 1 (torchmetrics semantics) and LPIPS-AlexNet (:mod:`.lpips`, inputs
-scaled to [-1, 1]) on the full image, no crop; per-frame values are averaged (:class:`FrameMetrics`).
-
-SSIM borders. torchmetrics changed its SSIM in release 1.5 (Lightning-AI/torchmetrics PR #2721,
-2024-09): both versions reflect-pad the images by the Gaussian radius r (torch ``"reflect"``: the
-edge pixel is not repeated) and filter; up to 1.4 the SSIM map was then cropped by r on every side
-before the mean, which is exactly the 'valid' region (no window touches the padding) and equals
-``skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
-use_sample_covariance=False, data_range=1)``; from 1.5 on the map is not cropped, so the mean runs
-over all H x W pixels including the reflect-padded border (current releases also clamp the local
-variances at 0).
-``border="reflect"`` (the default) reproduces torchmetrics >= 1.5, ``border="valid"`` reproduces
-torchmetrics <= 1.4 and skimage. On masked-protocol frames (white border on both images) the two
-differ very little. Local moments are taken of the images centred on their per-channel means
-(mathematically the same SSIM; far less float32 cancellation in E[x^2] - E[x]^2, and identical
-constant images give exactly 1), and both modes clamp the local variances at 0 as current
-torchmetrics does (a change at rounding level only); the tests hold both modes to the skimage-based
-references at rounding level.
-
-As in torchmetrics (and skimage) the Gaussian window is derived from sigma when ``window`` is None:
-``2 * int(3.5 * sigma + 0.5) + 1``, which is 11 for sigma 1.5, so the defaults coincide.
+Tensors are batched NCHW floats in [0, 1] (``[B, C, H, W]``); every metric returns one value per image
+(``[B]``) and is differentiable. The protocol and SSIM's border conventions: docs/design.md, "Evaluation
+protocol (4, after ExAvatar)".
 """
 
 from __future__ import annotations
@@ -159,8 +136,8 @@ def ssim_map(
 
     -> [B, C, H, W] for ``border="reflect"`` (reflect padding by the window radius, torchmetrics >= 1.5),
     [B, C, H - window + 1, W - window + 1] for ``border="valid"`` (no padding; torchmetrics <= 1.4 and
-    skimage). ``window`` None derives it from sigma (11 for 1.5), as torchmetrics does. See the module
-    docstring for the border conventions. Differentiable and finite for any finite input (constant,
+    skimage). ``window`` None derives it from sigma (11 for 1.5), as torchmetrics does. The border
+    conventions: docs/design.md, "Evaluation protocol (4, after ExAvatar)". Differentiable and finite for any finite input (constant,
     all-black and all-white images give 1 for identical images, the denominators are >= C1 * C2).
     """
     pred, gt = _check_pair(pred, gt)

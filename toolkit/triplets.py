@@ -1,29 +1,10 @@
 """Data construction for the Refiner and Examiner (paper 3.2.4): per subject frame T, the GT I^T, the
-baseline avatar's coarse render I_c^T at the same pose and camera, the body normal map I_g^T, and
-(at sampling time) a GT I^{T+k} from the same sequence with 0 < |k| <= K.
+baseline avatar's coarse render I_c^T at the same pose and camera, the body normal map I_g^T and the
+aligned reference, in one triplet file; ``TripletSet`` samples training tuples with a GT I^{T+k} from the
+same sequence (0 < |k| <= K).
 
-A triplet file is one .npz of plain arrays (no pickle):
-
-    meta      0-d str   JSON: subject, run, checkpoint step, image size, background, format version
-    gt        [N, H, W, 3] uint8   the subject's frames
-    mask      [N, H, W]    uint8   their masks
-    coarse    [N, H, W, 3] uint8   the avatar (refined set) at the frame's pose and camera, same background
-    normal    [N, H, W, 3] uint8   camera-space body normals (runtime.normal_map encoding)
-    frame     [N] int32    subject frame index
-    split     [N] str      "train" / "test"
-    sequence  [N] str      motion sequence
-    view_yaw  [N] float32  the body's facing direction seen from the camera (radians, 0 = facing it)
-    aligned   [N, H, W, 3] uint8   (version >= 2) real pixels carried to frame T through the body mesh from
-                                   other training frames (runtime/aligned.py), 0 where none was carried
-    valid     [N, H, W]    uint8   (version >= 2) 255 where ``aligned`` holds a carried pixel
-    aligned_from [N] int32 (version >= 2) the own source frame of ``aligned``: a training frame T+k of
-                                   T's sequence (0 < |k| <= ALIGN_K), as a Generator draw has its source
-                                   frame; the other sources are the training frames (never T) that see
-                                   the body from the nearest direction
-
-``TripletSet`` samples training tuples and, for evaluation on test frames, picks as texture reference
-the training frame that sees the body from the most similar direction (what the runtime's augment
-has: a real frame of the subject near the novel view).
+The file: docs/formats.md, "Triplets"; the aligned reference's sources: docs/augmentation.md, "Refiner
+conditions".
 """
 
 from __future__ import annotations
@@ -77,7 +58,8 @@ def _own_source(split: np.ndarray, sequence: np.ndarray, i: int, rng: np.random.
 
 def aligned_references(subject, coarse: np.ndarray, seed: int = 0,
                        progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every frame T's aligned reference from the subject's other training frames (module doc).
+    """Every frame T's aligned reference from the subject's other training frames (docs/augmentation.md,
+    "Refiner conditions").
     coarse [N, H, W, 3] uint8 (the render flow re-aligns to) -> (aligned uint8 [N, H, W, 3], valid uint8
     [N, H, W], aligned_from int32 [N])."""
     from tqdm import tqdm

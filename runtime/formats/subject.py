@@ -1,15 +1,6 @@
-"""The subject format (version 1) is a folder; docs/formats.md documents it in full.
-
-    subject.json        metadata: format, version, body model, image size, frame count, sequences ...
-    body.npz            the subject's shaped body: SkinnedMesh.to_arrays() (pose it without torch)
-    frames.npz          per-frame poses, translations, cameras, split, sequence and frame names
-    images/<name>.png   8-bit RGB frames
-    masks/<name>.png    8-bit gray masks, 255 = subject (soft edges allowed)
-
-``load_subject`` validates everything and raises ``FormatError`` (a ValueError) whose message names the
-file, the field and the offending value or count. ``save_subject`` writes into a temporary sibling
-folder and renames it into place at the end, so ``path`` is never left half-written. Files are data:
-``np.load(..., allow_pickle=False)``, never pickle.
+"""The subject format (version 1), a folder: ``load_subject`` validates everything and raises ``FormatError``
+naming the file, the field and the value; ``save_subject`` writes atomically. The layout: docs/formats.md,
+"Subject".
 """
 
 from __future__ import annotations

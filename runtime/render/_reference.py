@@ -1,29 +1,9 @@
 """Brute-force Gaussian splatting oracle (numpy, float64): every Gaussian at every pixel, written plainly.
 
-Private: the reference the renderers are tested and benchmarked against (as gsplat ships its torch
-reference beside its kernels), not a renderer to use. It shares the semantics' constants with
-:mod:`.projection` but none of its arithmetic (no factored covariance, no Cholesky conic, no tiles,
-its own quaternion conversion), so an error in either shows as a disagreement. The semantics are
-those of docs/design.md, "Renderer semantics":
-
-- Sigma = R S S^T R^T (quaternion wxyz normalised, zero -> identity); camera mean m_c = R_v m + t_v,
-  Sigma_c = R_v Sigma R_v^T;
-- cull: centre depth z < near or z > far; opacity < 1/255 (compared in float32);
-- EWA: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]] with x' = z clamp(x/z, -lim_x_neg, lim_x_pos),
-  lim_x_pos = (W - cx)/fx + 0.3 tan_fovx, lim_x_neg = cx/fx + 0.3 tan_fovx, tan_fovx = 0.5 W / fx
-  (y alike); Sigma_2d = J Sigma_c J^T + 0.3 I; conic = Sigma_2d^-1 = (A, B, C);
-  mean2d = (K[:2] m_c) / z;
-- radius box: extent = min(3.33, sqrt(2 ln(255 o))), r = ceil(extent sqrt(Sigma_2d diagonal)); cull
-  when both radii are 0 or the box [mean2d - r, mean2d + r] lies entirely outside [0, W] x [0, H];
-  a pixel centre (j + 0.5, i + 0.5) sees the Gaussian only inside the closed box |dx| <= r_x, |dy| <= r_y;
-- per pixel, front to back by centre depth (ties by index): sigma = 0.5 (A dx^2 + C dy^2) + B dx dy;
-  skip if sigma < 0; alpha = min(0.99, o exp(-sigma)); skip if float32(alpha) < float32(1/255);
-  next_T = T (1 - alpha) in float32 on float32 values; if next_T <= 1e-4 stop, this Gaussian excluded;
-  else w = alpha T, C += w c, D += w z, T = next_T;
-- rgb = C + T background, alpha = 1 - T, depth = D (the alpha-weighted depth sum, not normalised).
-
-The stop test runs on a float32 T (``T32``) exactly as written; the colour sums use float64 values of
-alpha and T (``dtype``, np.longdouble for extra precision on extreme scenes).
+Private: the reference the renderers are tested and benchmarked against (docs/design.md, "Renderer
+semantics", steps 1-6, followed literally), not a renderer to use. It shares the constants of
+:mod:`.projection` but none of its arithmetic (no factored covariance, no Cholesky conic, no tiles, its
+own quaternion conversion), so an error in either shows as a disagreement.
 """
 
 from __future__ import annotations
@@ -109,7 +89,9 @@ def rasterize_reference(
     far_plane: float = 1e10,
     dtype=np.float64,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """-> (rgb [H, W, 3], alpha [H, W], depth [H, W]) in ``dtype``."""
+    """-> (rgb [H, W, 3], alpha [H, W], depth [H, W]) in ``dtype``. sigma < 0 is skipped (gsplat's guard);
+    the stop test runs on a float32 T (``T32``) exactly as written, the colour sums on ``dtype`` values of
+    alpha and T (np.longdouble for extra precision on extreme scenes)."""
     colors = np.asarray(colors, dtype=dtype).reshape(-1, 3)
     bg = np.zeros(3, dtype=dtype) if background is None else np.asarray(background, dtype=dtype)
     proj = project_reference(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, dtype)

@@ -1,20 +1,6 @@
-"""Input checks and the EWA projection of 3D Gaussians to the image (docs/design.md, "Renderer semantics").
-
-The numpy twin of ``trioman.toolkit.render.projection``: the same float64 arithmetic and the same two
-numerically careful choices, so extreme Gaussians (scales 1e-6 .. 1e2 m, anisotropy 1e6, centres on
-the near plane) stay accurate:
-
-- the 2D covariance is kept in factored form, Sigma2d = N N^T + eps2d I with N = J R_view R S
-  (2 x 3), and its determinant is eps2d^2 + eps2d tr(N N^T) + |n_0 x n_1|^2 (Cauchy-Binet), a sum of
-  non-negative terms, instead of a c - b^2, which cancels catastrophically for thin Gaussians;
-- sigma = 0.5 (A dx^2 + C dy^2) + B dx dy is evaluated as 0.5 (u^2 + v^2) with u = a dx + b dy,
-  v = c dy, the Cholesky factor of the conic [[A, B], [B, C]] = L^T L, L = [[a, b], [0, c]]:
-  a = sqrt(Sigma11 / det), b = -Sigma01 / sqrt(det Sigma11), c = 1 / sqrt(Sigma11).
-
-Culling is cheap first: the centre's depth and the opacity, then a conservative screen bound from
-the largest scale (:func:`_bound_radii`), and only the survivors get covariances (isotropic ones
-without their quaternion: Sigma = s^2 I for any rotation). The cost therefore follows what the view
-needs, not N.
+"""Input checks and the EWA projection of 3D Gaussians to the image (numpy; the twin of
+``trioman.toolkit.render.projection``): docs/design.md, "Renderer semantics" and its "How the renderers
+compute it" (factored covariance, Cholesky conic, cheap culling first).
 """
 
 from __future__ import annotations

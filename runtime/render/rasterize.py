@@ -1,40 +1,7 @@
-"""Tile rasterizer for 3D Gaussians in numpy (docs/design.md, "Renderer semantics"; no torch).
+"""Tile rasterizer for 3D Gaussians in numpy (no torch): the runtime's renderer, ``rasterize``.
 
-Semantics, per pixel with centre (j + 0.5, i + 0.5), visible Gaussians front to back by centre depth
-(ties by index), each only within its radius box (:mod:`.tiles`):
-sigma = 0.5 (A dx^2 + C dy^2) + B dx dy, alpha = min(0.99, o exp(-sigma)), skipped if < 1/255;
-next_T = T (1 - alpha); stop, that Gaussian excluded, when next_T <= 1e-4; else w = alpha T, T = next_T.
-Outputs: rgb = sum w c + T background, alpha = 1 - T, and depth = sum w z, the alpha-weighted SUM of
-camera depths, NOT normalised (depth / alpha is the expected depth of the covered part).
-
-Pipeline. :func:`~.projection.project` (float64, O(N) cheap culls, covariances for the survivors)
--> per-tile depth-sorted lists of (tile, Gaussian) pairs (:func:`~.tiles.bin_gaussians`) -> a float32
-table with one column per pair (:func:`_pair_table`: the Cholesky coefficients anchored at the
-pair's tile centre in float64, log opacity, colour, depth) -> dense evaluation of blocks
-[kb, tiles, s^2] (list position, tile, pixel; the list axis outermost, so the running product over it
-is kb vectorised multiplies): chunks of tiles sorted by list length, each walked along the lists in
-blocks of kb positions that carry the per-pixel T (:func:`_composite`). Per block, the pairs'
-(u0, a, b, v0, c) become the pixels' u, v by one small matrix product each (:func:`_block_alpha`).
-A block holds at most ``chunk_elements`` pixel-Gaussian entries, which bounds the per-block memory
-independently of N and of the image size (the pair table is O(pairs), like the binning); a tile
-leaves the walk once all its pixels have stopped or its list is done.
-
-Cost. Most of the time is the dense evaluation (exp dominates it), then the per-block gathers and
-the colour sums (one batched matrix product per block). Numpy's generic paths are avoided where
-they are slow: 2D strided stores and row gathers with a short inner axis (the pair table is
-column-major and built from 1D gathers), boolean-mask assignment (the alpha skip multiplies by the
-mask), row broadcasts when every opacity is 1, and the [H, W, 3] broadcast of the background.
-
-Precision. alpha, T and the colour sums are float32. T is a sequential float32 product, exactly the
-stop test's ``T * (1 - alpha) <= 1e-4`` on float32 values. The quadratic form is evaluated in
-Cholesky form, sigma = u^2 + v^2 with u, v anchored at each tile's centre in float64, so float32
-pixels stay accurate for extreme and far-off-centre Gaussians.
-
-Tile size. The dense cost is pairs x s^2, the binning cost grows with pairs. The avatar's Gaussians
-are small (radius boxes ~9 px at 256 x 256) and its background pixels never stop, so tiles rarely
-leave the walk early and the dense cost dominates: small tiles (``DEFAULT_TILE`` = 4) suit it, larger
-ones waste pixels, smaller ones cost binning (``trioman bench render`` measures them; docs/findings.md,
-"Renderers"). The result does not depend on the tile size.
+What it computes: docs/design.md, "Renderer semantics"; how (pipeline, precision, tile size): its
+"How the renderers compute it".
 """
 
 from __future__ import annotations
@@ -53,7 +20,7 @@ from trioman.runtime.render.projection import (
 from trioman.runtime.render.tiles import bin_gaussians
 from trioman.runtime.render.timing import stage
 
-DEFAULT_TILE = 4  # tile side in pixels (module doc)
+DEFAULT_TILE = 4  # tile side in pixels (docs/design.md, "How the renderers compute it")
 DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array): blocks
 # small enough that the [n, 3] @ [3, s^2] products stay on one BLAS thread (docs/findings.md, "Renderers")
 KB_MIN = 8  # shortest block along the lists
@@ -225,9 +192,9 @@ def rasterize(
     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
     extent: str = "opacity",
 ) -> RenderOutput:
-    """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]), float32; see the
-    module doc. ``depth`` is the alpha-weighted sum of camera depths, not normalised. N == 0 or nothing
-    visible gives the background. ``tile_size`` is the tile side; ``chunk_elements`` bounds the dense
+    """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]), float32 (docs/design.md,
+    "Renderer semantics"). ``depth`` is the alpha-weighted sum of camera depths, not normalised. N == 0 or
+    nothing visible gives the background. ``tile_size`` is the tile side; ``chunk_elements`` bounds the dense
     pixel x Gaussian blocks (peak memory). Neither changes the result beyond float32 rounding of the
     colour sums. ``extent`` is the radius rule (:func:`~.projection.project`): "opacity" (exact, the
     default) bins each Gaussian to the tiles its alpha >= 1/255 ellipse touches; "3sigma" to the tiles

@@ -1,16 +1,6 @@
 """Tile binning: which Gaussians each square tile (``tile`` pixels a side) sees, front to back.
 
-A Gaussian reaches the pixels whose centres lie in its closed radius box,
-|j + 0.5 - x| <= r_x and |i + 0.5 - y| <= r_y, and where its alpha is >= 1/255, i.e. inside the
-ellipse (a dx + b dy)^2 + (c dy)^2 <= 2 ln(255 o) (Cholesky factor of the conic, :mod:`.projection`);
-the radius box circumscribes that ellipse. A tile lists every Gaussian whose box reaches one of its
-pixel centres and, when the Cholesky factors are given, whose ellipse (widened by a margin far above
-rounding) does too: per (Gaussian, tile row) the exact x-range of the ellipse over the band of that
-row's pixel centres bounds the tile columns ("tile-ellipse intersection" culling). The culled pairs
-have alpha < 1/255 at every pixel, so the result is unchanged; about a quarter fewer pairs.
-
-Within a tile the list is sorted by centre depth, ties by index: pairs are emitted in depth order and
-a stable sort by tile id keeps it (a radix sort on uint16 ids when there are at most 65536 tiles).
+The rule (radius box, tile-ellipse culling, depth order): docs/design.md, "How the renderers compute it".
 """
 
 from __future__ import annotations

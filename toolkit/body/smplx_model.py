@@ -1,25 +1,9 @@
-"""SMPL-X (Pavlakos et al. 2019) behind the body-model interface, built with the ``smplx`` package.
+"""SMPL-X (Pavlakos et al. 2019) behind the body-model interface, built with the ``smplx`` package from the
+user's licensed model file (never shipped, read without pickle).
 
-The model file ``SMPLX_{NEUTRAL,MALE,FEMALE}.npz`` is licensed (register at https://smpl-x.is.tue.mpg.de)
-and never shipped: the user puts it in a folder given as ``model_dir`` (``DIR/SMPLX_MALE.npz`` or
-smplx's own layout ``DIR/smplx/SMPLX_MALE.npz``). We read it without pickle (the real files hold two
-pickled dicts, ``joint2num`` and ``part2num``, which nothing needs), hand smplx a plain copy of the
-arrays it reads, and take from its layer the shaped template, joint regressor, skinning weights,
-pose-corrective blend shapes and hand means.
-
-Conventions. SMPL-X's frame is y up, facing +z; TrioMan's world is z up with the rest body facing -y
-(docs/formats.md). Everything is rotated by ``Y_UP_TO_Z_UP`` (x, y, z) -> (x, -z, y): the rest mesh and
-joints, every joint's axis-angle (aa -> M aa), the translation (t -> M t), the cameras
-(viewmat -> viewmat diag(M^T, 1)) and the pose-corrective basis, so the posed mesh is exactly M times
-smplx's. SMPL-X's FK (a joint's rotation about its rest position, chained from the pelvis, then + transl)
-is the runtime's convention, so the exported ``SkinnedMesh`` (55 joints: body, jaw, eyes, 2 x 15 finger
-joints; the pose-corrective blend shapes included) reproduces smplx's forward in numpy.
-
-A pose here is SMPL-X's *full* pose: the hand means are already added (smplx adds them inside its
-forward when ``flat_hand_mean`` is False), see :func:`full_pose`. Shape (betas), ExAvatar's
-``face_offset`` (on the template) and ``joint_offset`` (on the regressed joints, not the pelvis) are
-baked into the rest mesh. Expression coefficients change vertices per frame, which the subject format
-does not carry: they are not used.
+The file, the settings, the y-up -> z-up turn (``Y_UP_TO_Z_UP``), the full pose with the hand means
+(:func:`full_pose`) and what is baked into the rest mesh: docs/real_data.md, "The SMPL-X body" and
+"Frames and axes".
 """
 
 from __future__ import annotations

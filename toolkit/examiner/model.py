@@ -1,34 +1,7 @@
-"""The Examiner (paper 3.2.6): a dual-branch attention network scoring how well a candidate frame
-matches a real reference frame, in [0, 1].
+"""The Examiner (paper 3.2.6): a dual-branch attention network scoring how well a candidate frame matches
+a real reference frame, in [0, 1] (``Examiner``).
 
-    f_c = V(candidate), f_k = V(reference)           ViT patch features [B, N, C], class token dropped
-    n dual blocks, C^{i-1} -> C^i, one attention layer shared by both branches:
-        q = Q(LN(f_k))                                 recorded once, used by both branches
-        lower: Attn(q, K(LN(f_k)), V(LN(f_k)))         the reference alone
-        upper: Attn(q, K(LN(f_c)), V(LN(f_c)))         the SAME layer, keys/values of the candidate
-        + residual, each -> [B, C, H, W] -> conv (C -> C^i) + GELU -> f^i [B, N, C^i]
-    on the upper branch f_c^n: patch scores s = MLP_s(LN(f_c^n)), weights w = MLP_w(LN(f_c^n)),
-        score = sum_patches softmax(w) * sigmoid(s)
-
-Design choices the paper leaves open (documented here, tested in tests/toolkit/examiner):
-- ``dual_attention="channel"`` (default): the paper says the layer examines "the semantic
-  similarity between different channels", so the attention map is [C, C] per head, computed over
-  all patches (XCiT's cross-covariance attention: q and k L2-normalised along the patches, a learned
-  temperature); each patch's output mixes the channels of V at that same patch, so the upper branch
-  lives on the candidate's patches and its residual is f_c (the lower branch's is f_k).
-  ``"token"``: the usual [N, N] map; the output lives on the reference's patches and both residuals
-  are f_k (a transformer decoder's cross-attention); there the candidate reaches the heads only as an
-  average over mostly background patches (docs/findings.md, "Examiner"). Checkpoints saved before the
-  field existed are token models.
-- ``detail_gain`` g > 0 feeds the ViT the normalised image plus g times its detail layer
-  (image - Gaussian blur of ``detail_sigma`` px, edge padding; an unsharp mask, a fixed depthwise
-  conv inside the graph, so ONNX and the runtime need nothing else). The Refiner's coarse frames
-  differ from real ones mostly in fine detail, which the plain input lets a from-scratch ViT ignore
-  in favour of the subjects' textures (docs/findings.md, "Examiner"). 0 is the paper's plain input.
-- the backbone's class token is dropped before the dual blocks (it only takes part in V's attention);
-- the attention layer, the squeeze conv and the heads are shared by both branches, so a candidate
-  equal to the reference gives an upper branch identical to the lower one: the lower branch's score
-  is the score of the pair (reference, reference), the paper's "I^{T+k} as the sole input".
+Its architecture and the choices the paper leaves open: docs/design.md, "Examiner (3.2.6)".
 """
 
 from __future__ import annotations

@@ -1,28 +1,7 @@
 """Captures in ExAvatar's preprocessed layouts (X-Humans, NeuMan, custom videos) -> a subject folder.
 
-The layouts, as ExAvatar's loaders read them (docs/real_data.md has the full list of files):
-
-- X-Humans, as X-Avatar releases it: ``SUBJ/gender.txt``, ``SUBJ/mean_shape_smplx.npy`` (10 betas),
-  ``SUBJ/{train,test}/TAKE/render/image/color_%06d.png``, ``render/depth/depth_%06d.tiff`` (mask = depth < the
-  frame's maximum depth), ``render/cameras.npz`` (``intrinsic`` [3, 3], ``extrinsic`` [F, 4, 4] world -> camera,
-  in image order), ``SMPLX/mesh-f%05d_smplx.pkl`` (pickled, world frame: read only with ``allow_pickle``); the
-  splits are the train/test takes. The fits must belong to the body they pose (``XHUMANS_FITS``): ExAvatar's
-  fitting output of a take (``TAKE/smplx_optimized/smplx_params/N.json``, camera frame, with that take's
-  identity beside it), or X-Humans' own fits on X-Humans' own body (gender.txt, the mean shape).
-- NeuMan: ``SEQ/images/%05d.png``, ``masks/N.png`` (training masks), ``segmentations/%05d.png`` (0 = person,
-  the evaluation masks, used for test frames), ``sparse/{cameras,images}.txt`` (COLMAP),
-  ``smplx_optimized/smplx_params/N.json`` (camera frame; unpadded, as ExAvatar's fitting names them),
-  ``{train,test}_split.txt`` (``val_split.txt`` is not read).
-- Custom: ``ID/frames/N.png``, ``masks/N.png``, ``smplx_optimized/smplx_params_smoothed/N.json`` (camera
-  frame), cameras from ``sparse/`` (COLMAP) or ``cam_params/N.json`` (R, t, focal, princpt),
-  ``frame_list_{train,test}.txt``.
-
-Images, masks, fits and cameras are matched by frame number, never by file name, so padding never matters.
-
-Identity (NeuMan, Custom, ExAvatar's X-Humans fits): ``smplx_optimized/shape_param.json`` (betas) and, when
-present, ``face_offset.json`` [10475, 3] and ``joint_offset.json`` [55, 3]. The body follows ExAvatar's SMPL-X
-layer: male, 100 shape coefficients, no hand PCA, hand poses relative to the hand mean. FLAME expression
-coefficients are not used (they need the FLAME files, and a subject carries no per-frame vertex offsets).
+The layouts as ExAvatar's loaders read them, which fits and masks are used, the identity and the body:
+docs/real_data.md, "trioman import exavatar".
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
-"""The Refiner (paper 3.2.5): a one-step, Difix-like multi-view latent U-Net trained from scratch.
+"""The Refiner (paper 3.2.5): a one-step, Difix-like multi-view latent U-Net trained from scratch (``Refiner``).
 
-    z_c = E_t(I_c^T), z_t = E_t(I^{T+k}), z_g = E_g(I_g^T)           latents [B, c, h, w]
-    stack the V views (conditions "none": z_c; "tex": z_c, z_t; "tex+geo": z_c, z_t, z_g) -> [B * V, c, h, w]
-    (conditions "warp" / "warp+geo": the views are (aligned, coarse[, normal]), ``view_images``)
-    U-Net once (self-attention over [B, V * h * w, C] tokens, convs and GroupNorm per view)
-    I_c', I_t' = D_t(z_c', z_t'), I_g' = D_g(z_g')                  with skips E_t -> D_t, E_g -> D_g
-    output [B, V, 3, H, W] in (0, 1), views in the order coarse, texture, geometry
-
-Output activation: ``residual=True`` (the default) refines in logit space, out = sigmoid(logit(x) + D(z')),
-with x the view's own input clamped to [1e-3, 1 - 1e-3]; the decoder's output conv starts at zero, so
-a fresh Refiner returns its inputs (up to that clamp) and learns the correction. ``residual=False``
-gives sigmoid(D(z')). The sigmoid never cuts gradients as a hard clamp would.
+Its views, conditions and output activation: docs/design.md, "Refiner (3.2.5, Difix-like)".
 """
 
 from __future__ import annotations

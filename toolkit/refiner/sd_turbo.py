@@ -1,24 +1,8 @@
 """The paper's Refiner backbone: SD-Turbo (diffusers AutoencoderKL + UNet2DConditionModel), one step, as in
-Difix / pix2pix-turbo (docs/design.md, "Refiner: the SD-Turbo backbone").
+Difix / pix2pix-turbo, built from a local SD-Turbo folder (nothing is downloaded).
 
-    x in [0, 1] -> 2x - 1 -> VAE encoder (frozen) -> latent mean * scaling_factor      z [B * V, 4, H/8, W/8]
-    U-Net once at the fixed timestep ``TIMESTEP``, prompt = the stored embedding        eps (epsilon prediction)
-        (attn1, self-attention, of every transformer block sees the V views' tokens together: [B, V * n, d])
-    x0 = (z - sqrt(1 - a_t) eps) / sqrt(a_t)     (DDPM's one-step x0; v_prediction and sample handled too)
-    VAE decoder on x0 / scaling_factor, plus 1x1 skip convs from the encoder's down-block inputs
-    -> clamp(-1, 1) -> (y + 1) / 2                                                     [B, V, 3, H, W]
-
-All views (coarse, reference, normal) go through the one pretrained VAE: the texture latents z_c, z_t and
-the geometry latent z_g differ by their inputs, as in Difix, which encodes render and reference with one VAE.
-The latent is the posterior mean (Difix samples, which makes export non-deterministic).
-
-Training is a full fine-tune of the U-Net, the VAE decoder and the skip convs (the VAE encoder is frozen),
-as Difix fine-tunes its U-Net fully: no peft dependency, and the exported graph is the trained one.
-
-The prompt embedding [1, L, D] is a buffer (saved with every checkpoint and in the ONNX graph as a
-constant): read from ``DIR/prompt_embeds.safetensors`` (key "prompt_embeds") or, when that file is
-absent, computed once from ``DIR/tokenizer`` and ``DIR/text_encoder`` with the transformers package.
-Nothing is ever downloaded: every part is read from the local folder.
+What it takes from them, the prompt embedding and what trains: docs/design.md, "Refiner: the SD-Turbo
+backbone".
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
-"""Input checks and the EWA projection of 3D Gaussians to the image (docs/design.md, "Renderer semantics").
-
-Everything here runs in float64 whatever the input dtype (the projection costs O(N), the pixels
-dominate), with autograd. Two numerically careful choices make the float64 values reliable even for
-extreme Gaussians (scales 1e-6 .. 1e2 m, anisotropy 1e6, centres on the near plane):
-
-- the 2D covariance is kept in factored form, Sigma2d = N N^T + eps2d I with N = J R_view R S
-  (2 x 3), and its determinant is eps2d^2 + eps2d tr(N N^T) + |n_0 x n_1|^2 (Cauchy-Binet), a sum of
-  non-negative terms, instead of a c - b^2, which cancels catastrophically for thin Gaussians;
-- the rasterizer evaluates sigma = 0.5 (A dx^2 + C dy^2) + B dx dy as 0.5 (u^2 + v^2) with
-  u = a dx + b dy, v = c dy, the Cholesky factor of the conic [[A, B], [B, C]] = L^T L,
-  L = [[a, b], [0, c]]: a = sqrt(Sigma11 / det), b = -Sigma01 / sqrt(det Sigma11), c = 1 / sqrt(Sigma11).
-  The same quadratic form, without the cancellation of the expanded polynomial.
+"""The EWA projection of 3D Gaussians to the image in float64 with autograd (torch; the twin of
+``trioman.runtime.render.projection``, whose constants and checks it uses): docs/design.md, "Renderer
+semantics" and its "How the renderers compute it" (factored covariance, Cholesky conic).
 """
 
 from __future__ import annotations
@@ -117,8 +107,8 @@ def take_rows(x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
 
 def _project(means, quats, scales, opacities, viewmat, K, width: int, height: int,
              near_plane: float = 0.01, far_plane: float = 1e10, eps2d: float = EPS2D) -> _Projected:
-    """Float64 projection of the visible Gaussians (see module doc). ``opacities`` None: extent 3.33,
-    no opacity cull (the rule of gsplat's pure-torch reference)."""
+    """Float64 projection of the visible Gaussians (docs/design.md, "How the renderers compute it").
+    ``opacities`` None: extent 3.33, no opacity cull (the rule of gsplat's pure-torch reference)."""
     f64 = torch.float64
     vm = viewmat.to(f64)
     Kd = K.to(f64)

@@ -1,42 +1,7 @@
-"""Differentiable tile rasterizer for 3D Gaussians on the CPU (docs/design.md, "Renderer semantics").
+"""Differentiable tile rasterizer for 3D Gaussians on the CPU (torch): ``rasterize``, the training renderer.
 
-Semantics, per pixel with centre (j + 0.5, i + 0.5), visible Gaussians front to back by centre depth
-(ties by index), each only within its radius box (:mod:`.tiles`):
-sigma = 0.5 (A dx^2 + C dy^2) + B dx dy, alpha = min(0.99, o exp(-sigma)), skipped if < 1/255;
-next_T = T (1 - alpha); stop, that Gaussian excluded, when next_T <= 1e-4; else w = alpha T, T = next_T.
-Outputs: rgb = sum w c + T background, alpha = 1 - T, and depth = sum w z, the alpha-weighted SUM of
-camera depths, NOT normalised (gsplat's "D" mode; depth / alpha is the expected depth of the covered
-part, 0 / 0 on empty pixels, which is why it is left to the caller).
-
-Pipeline. :func:`~.projection._project` (float64, autograd, O(N)) -> per-tile depth-sorted lists of
-(tile, Gaussian) pairs (:func:`~.tiles.bin_gaussians`) -> :class:`_Raster`, a custom autograd Function
-with a hand-written backward. Per pair it precomputes, for the tile's s rows and s columns, the terms
-of the exponent (see :func:`_pair_terms`); pixels are then evaluated densely as tensors
-[tiles, s, s, kb] (row, column, Gaussian; the list axis innermost): chunks of tiles (sorted by list
-length), each walked along the lists in blocks of kb Gaussians that carry the per-pixel T. A block's
-size is chosen so it holds about ``chunk_elements`` pixel-Gaussian entries (kb grows as the shorter
-lists run out), which bounds peak memory independently of N and of the image size; a tile leaves the
-walk when all its pixels have stopped. The backward pass recomputes each block back to front (nothing
-per pixel and Gaussian is stored) and applies the gradient of the blending equations, with the
-per-pixel skip / cap / stop decisions as constants, as gsplat's CUDA backward does.
-
-Tile size. gsplat's 16 x 16 tiles suit a GPU thread block. Here the dense cost is pairs x s^2, and a
-Gaussian's box fills little of a tile much wider than the box: smaller tiles waste fewer pixels, for more
-pairs to bin. By default (:func:`tile_side`) the side is twice the median radius of the visible
-Gaussians' boxes, within [4, 16]: 4 for the quick avatar at 128 px (median radius 2), 6 at 256 px, where
-8 costs about a fifth more in forward and backward (docs/speed.md). The semantics do not depend on the
-tile size (tests run several).
-
-Precision. The render dtype is float32 (float64 when ``means`` is float64, for gradient checks).
-alpha and T are float32 and the stop test is ``T * (1 - alpha) <= 1e-4`` on float32 values in both
-dtypes. T is a running product from ``torch.cumprod``, which accumulates in double and rounds each T
-to float32: at the exact ties of the stop test (two alphas capped at 0.99 from T = 1, 0.01f * 0.01f)
-the product is exact, so the decision is float32's; elsewhere T may differ from a strictly sequential
-float32 product by a few ulps, as alpha itself does from a float64 reference. The quadratic form is
-evaluated in Cholesky form, sigma = u^2 + v^2 with u, v anchored at each tile's centre in float64
-(:mod:`.projection`), so float32 pixels stay accurate for extreme and far-off-centre Gaussians; sigma
-is non-negative by construction, so gsplat's "skip if sigma < 0" (a guard against rounding in the
-expanded form) never applies.
+What it computes: docs/design.md, "Renderer semantics"; how (pipeline, precision, the backward pass,
+tile size): its "How the renderers compute it".
 """
 
 from __future__ import annotations
@@ -60,7 +25,7 @@ from trioman.toolkit.render.projection import (
 )
 from trioman.toolkit.render.tiles import bin_gaussians
 
-TILE_RANGE = (4, 16)  # the default tile side's bounds, pixels (module doc)
+TILE_RANGE = (4, 16)  # the default tile side's bounds, pixels (docs/design.md, "How the renderers compute it")
 DEFAULT_CHUNK_ELEMENTS = 1 << 18  # pixel x Gaussian entries per dense block tensor (1 MiB in float32)
 KB_MIN = 16  # shortest block along the lists
 
@@ -316,7 +281,7 @@ class _Raster(torch.autograd.Function):
 
 def tile_side(radii: torch.Tensor) -> int:
     """radii [M, 2] of the visible Gaussians (whole pixels) -> the default tile side: twice the median of
-    the larger radius, within ``TILE_RANGE`` (module doc)."""
+    the larger radius, within ``TILE_RANGE``."""
     median = float(radii.detach().amax(1).median())
     return int(min(max(2 * median, TILE_RANGE[0]), TILE_RANGE[1]))
 
@@ -342,7 +307,7 @@ def rasterize(
     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
     tile_size: int | None = None,
 ) -> RenderOutput:
-    """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]); see the module doc.
+    """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]) (docs/design.md, "Renderer semantics").
 
     Differentiable w.r.t. means, quats, scales, opacities, colors and background. ``depth`` is the
     alpha-weighted sum of camera depths, not normalised. Outputs are float32 (float64 for float64

@@ -1,18 +1,6 @@
-"""``trioman bench TARGET``: benchmarks that write a markdown table and JSON to a folder (trioman.bench).
-
-Targets: ``synth`` (time per stage and peak memory of synthesising a subject); ``train`` (avatar
-quality against training time per preset, and the rasterizer's speed against the brute-force and
-dense references); ``render`` (the numpy runtime renderer against the torch rasterizer's forward and
-the brute-force oracle, and the cost of Gaussians the view does not need); ``models`` (Refiner and
-Examiner trained on a synthetic corpus, evaluated on held-out subjects); ``deploy`` (error against run
-time of the renderer variants, the exported models per precision and optimisation level, and the
-augment loop's stages); ``ablation`` (the paper's Tables 1 and 2: avatars trained with and without
-online augmentation on held-out subjects); ``frames`` (peak memory of training on a generated
-real-capture-sized subject); ``stability`` (the numerical-stability checks: renderers against the float64
-oracle on extreme scenes, rotations and FK + LBS near pi, the Refiner and Examiner and their ONNX variants on
-extreme images, the three training loops at 100x their learning rates); ``scale`` (data-parallel training:
-samples per second at 1 and 2 processes, the communication share of a step, a prediction for 8 GPUs). Timings are wall clock on the machine
-named in the report; nothing here is a timed test. Module contract (trioman/cli.py): standard-library imports only at module level.
+"""``trioman bench TARGET``: benchmarks that write a markdown table and JSON to a folder, one module of
+trioman.bench per target (``TARGETS``; each module's docstring says what it measures). Timings are wall clock
+on the machine named in the report; nothing here is a timed test.
 """
 
 from __future__ import annotations
