@@ -4,8 +4,8 @@ Runs on the runtime alone (numpy + onnxruntime + OpenCV, no torch): numpy FK + L
 Gaussians (plus the avatar's ONNX pose-dependent deltas), the numpy splat renderer draws them.
 The camera is ``fixed`` (one view that keeps the whole clip in frame) or ``orbit`` (a full turn about
 the subject over the clip). Reports the time per frame by stage. The checks of its options
-(``parse_background``, ``check_size``, ``check_video_size``, ``check_angles``) name the command-line flag,
-and the render command uses them too. Standard-library imports only at module level.
+(``parse_background``, ``check_size``, ``check_video_size``, ``check_angles``) name the parameter, and the
+render command uses them too; the commands show their flags. Standard-library imports only at module level.
 """
 
 from __future__ import annotations
@@ -13,16 +13,16 @@ from __future__ import annotations
 import math
 
 
-def parse_background(text: str):
+def parse_background(background: str):
     """'r,g,b' in [0, 1] -> float32 [3]."""
     import numpy as np
 
     try:
-        bg = np.array([float(v) for v in text.split(",")], dtype=np.float32)
+        bg = np.array([float(v) for v in background.split(",")], dtype=np.float32)
     except ValueError:
-        raise ValueError(f"--background: expected r,g,b numbers in [0, 1], got {text!r}") from None
+        raise ValueError(f"background: expected r,g,b numbers in [0, 1], got {background!r}") from None
     if bg.shape != (3,) or not np.all((bg >= 0) & (bg <= 1)):
-        raise ValueError(f"--background: expected three numbers in [0, 1], got {text!r}")
+        raise ValueError(f"background: expected three numbers in [0, 1], got {background!r}")
     return bg
 
 
@@ -31,14 +31,14 @@ EMPTY_ALPHA = 1.0 / 255  # a frame whose every pixel has less coverage shows not
 
 def check_size(size: int) -> int:
     if not 16 <= size <= 4096:
-        raise ValueError(f"--size: must lie in [16, 4096] pixels, got {size}")
+        raise ValueError(f"size: must lie in [16, 4096] pixels, got {size}")
     return size
 
 
 def check_video_size(size: int) -> int:
     """An MP4's side: even (the codec would drop an odd last row and column), else refused."""
     if check_size(size) % 2:
-        raise ValueError(f"--size: {size} is odd, and an MP4 needs even sides (it would be {size - 1}x{size - 1}); "
+        raise ValueError(f"size: {size} is odd, and an MP4 needs even sides (it would be {size - 1}x{size - 1}); "
                          f"use {size - 1} or {size + 1}")
     return size
 
@@ -46,7 +46,7 @@ def check_video_size(size: int) -> int:
 def check_angles(**degrees: float) -> None:
     for name, value in degrees.items():
         if not math.isfinite(value):
-            raise ValueError(f"--{name}: must be a finite number of degrees, got {value}")
+            raise ValueError(f"{name}: must be a finite number of degrees, got {value}")
 
 
 def clip_points(avatar, motion, samples: int = 12):
@@ -82,7 +82,7 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
     bg = np.asarray(background, dtype=np.float32)
     out = Path(out)
     if not out.parent.is_dir():
-        raise FileNotFoundError(f"--out: the folder {out.parent} does not exist")
+        raise FileNotFoundError(f"out: the folder {out.parent} does not exist")
     if frames_dir is not None:
         frames_dir = Path(frames_dir)
         frames_dir.mkdir(parents=True, exist_ok=True)
@@ -90,7 +90,7 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
     try:
         K, viewmat, center = frame_points(clip_points(avatar, motion), (size, size), az0, el)
     except ValueError as err:
-        raise ValueError(f"--motion {motion.name}: the avatar cannot be framed: {err}") from None
+        raise ValueError(f"motion {motion.name}: the avatar cannot be framed: {err}") from None
     distance = float(np.linalg.norm(np.linalg.inv(viewmat)[:3, 3] - center))
     t_pose = t_render = 0.0
     empty: list[int] = []
@@ -114,7 +114,7 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
                     written.append(frames_dir / f"{i:05d}.png")
                     write_png(written[-1], r.rgb)
             if len(empty) == motion.num_frames:
-                raise ValueError(f"--motion {motion.name}: all {len(empty)} frames show nothing of the avatar (out of "
+                raise ValueError(f"motion {motion.name}: all {len(empty)} frames show nothing of the avatar (out of "
                                  f"view of the camera); no video written")
     except BaseException:
         for path in written:

@@ -227,7 +227,8 @@ def check_not_input(path: PathLike, inputs: Iterable[PathLike | None]) -> None:
 
 def check_folder_target(path: PathLike, overwrite: bool, kind: FolderKind | None = None,
                         inputs: Iterable[PathLike | None] = ()) -> None:
-    """The one rule of every command that writes a folder (``--overwrite``; docs/design.md, "Conventions").
+    """The one rule of every command that writes a folder (``overwrite``, the commands' ``--overwrite``;
+    docs/design.md, "What a command may delete, and what it may read").
 
     A new folder may take ``path`` when nothing is there or an empty folder; a non-empty folder is replaced
     only with ``overwrite`` and only when it is a folder of ``kind`` holding nothing but what that kind
@@ -244,13 +245,12 @@ def check_folder_target(path: PathLike, overwrite: bool, kind: FolderKind | None
     foreign = kind.first_foreign(path)
     if foreign is None:
         if not overwrite:
-            raise FileExistsError(f"{path}: folder exists and is not empty (pass overwrite=True / --overwrite to "
-                                  f"replace it)")
+            raise FileExistsError(f"{path}: folder exists and is not empty (give `overwrite` to replace it)")
         return
     why = (f"the folder holds no {kind.marker}: not a trioman {kind.name} folder" if not (path / kind.marker).is_file()
            else f"not part of a trioman {kind.name} folder")
     if overwrite:
-        raise FileExistsError(f"--overwrite: {foreign} was not written by trioman ({why}); refusing to replace {path} "
+        raise FileExistsError(f"overwrite: {foreign} was not written by trioman ({why}); refusing to replace {path} "
                               f"(move it away, or choose another output folder)")
     raise FileExistsError(f"{path}: folder exists and holds {foreign}, which trioman did not write ({why}); choose "
                           f"another output folder")

@@ -1,10 +1,10 @@
-"""Shards of a long job (``--shard I/N`` and ``--merge``; docs/scaling.md): N independent jobs, on one
-machine or many sharing a folder, each own the items at positions p with p % N == I (whole subjects of
-a corpus, whole source frames of an augment run) and write only their own files, atomically. A shard
-records its status in ``<out>/shards/I-of-N.json`` ("running", then "complete" or "failed" with the
-error) and holds ``<out>/shards/I-of-N.lock``, created exclusively, while it runs, so two jobs of one shard
-never run together; the merge reads every record, refuses a missing, unfinished or failed shard or one run with
-other settings, naming it, and then assembles the final files as one process would."""
+"""Shards of a long job (``shard`` and ``merge``: the commands' ``--shard I/N`` and ``--merge``; docs/scaling.md):
+N independent jobs, on one machine or many sharing a folder, each own the items at positions p with p % N == I
+(whole subjects of a corpus, whole source frames of an augment run) and write only their own files,
+atomically. A shard records its status in ``<out>/shards/I-of-N.json`` ("running", then "complete" or
+"failed" with the error) and holds ``<out>/shards/I-of-N.lock``, created exclusively, while it runs, so two
+jobs of one shard never run together; the merge reads every record, refuses a missing, unfinished or failed
+shard or one run with other settings, naming it, and then assembles the final files as one process would."""
 
 from __future__ import annotations
 
@@ -33,14 +33,14 @@ class Shard:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.index, int) and isinstance(self.count, int) and 0 <= self.index < self.count):
-            raise ValueError(f"--shard: expected I/N with 0 <= I < N, got {self.index}/{self.count}")
+            raise ValueError(f"shard: expected I/N with 0 <= I < N, got {self.index}/{self.count}")
 
     @classmethod
     def parse(cls, text: str) -> "Shard":
         """"I/N" -> Shard(I, N)."""
         m = re.fullmatch(r"(\d+)/(\d+)", text.strip())
         if m is None or not 0 <= int(m[1]) < int(m[2]):
-            raise ValueError(f"--shard: expected I/N with 0 <= I < N (e.g. 0/4), got {text!r}")
+            raise ValueError(f"shard: expected I/N with 0 <= I < N (e.g. 0/4), got {text!r}")
         return cls(int(m[1]), int(m[2]))
 
     @property
@@ -82,7 +82,7 @@ def _lock(path: Path, shard: Shard) -> None:
         except (OSError, ValueError, KeyError, TypeError):
             who, gone = "being started", False
         state = "was killed (that process is gone)" if gone else "is running"
-        raise ValueError(f"--shard {shard}: another job of this shard {state} ({who}; lock {path}); "
+        raise ValueError(f"shard {shard}: another job of this shard {state} ({who}; lock {path}); "
                          + (f"remove {path} and run it again" if gone else
                             f"wait for it, or if it was killed, remove {path} and run it again")) from None
     with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -121,42 +121,43 @@ def shard_run(out: str | Path, shard: Shard, settings: Mapping[str, Any], items:
         lock.unlink(missing_ok=True)
 
 
-# augment keeps an interrupted shard's finished frames only with --resume (synth-corpus skips finished subjects itself)
+# augment keeps an interrupted shard's finished frames only with --resume (synth-corpus skips finished subjects
+# itself): a hint naming that command's flag, the same for the users of both commands
 _RERUN = " (augment: with --resume as well)"
 
 
 def check_shards(out: str | Path, settings: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The records of every shard of ``out``, in shard order, after checking that all N exist, finished
-    and ran with ``settings``; a ValueError naming --merge and the shard otherwise."""
+    and ran with ``settings``; a ValueError naming ``merge`` and the shard otherwise."""
     folder = Path(out) / SHARDS_DIR
     found = sorted((int(m[1]), int(m[2])) for p in (folder.iterdir() if folder.is_dir() else ())
                    if (m := _NAME.fullmatch(p.name)))
     if not found:
-        raise ValueError(f"--merge: no shard records in {folder} (run the jobs with --shard I/N first)")
+        raise ValueError(f"merge: no shard records in {folder} (run the jobs with `shard` I/N first)")
     counts = sorted({n for _, n in found})
     if len(counts) > 1:
-        raise ValueError(f"--merge: {folder} holds shards of different counts N ({', '.join(map(str, counts))}); "
+        raise ValueError(f"merge: {folder} holds shards of different counts N ({', '.join(map(str, counts))}); "
                          f"remove the records of the runs you do not mean")
     records = []
     for shard in (Shard(i, counts[0]) for i in range(counts[0])):
         path = shard.record_path(Path(out))
         if not path.is_file():
-            raise ValueError(f"--merge: shard {shard} is missing: no {path} (run the job with --shard {shard})")
+            raise ValueError(f"merge: shard {shard} is missing: no {path} (run the job with `shard` {shard})")
         try:
             rec = json.loads(path.read_text(encoding="utf-8"))
             status = rec["status"]
         except (OSError, ValueError, KeyError, TypeError) as err:
-            raise ValueError(f"--merge: shard {shard}: unreadable record {path} ({err})") from None
+            raise ValueError(f"merge: shard {shard}: unreadable record {path} ({err})") from None
         if status == "failed":
-            raise ValueError(f"--merge: shard {shard} failed ({rec.get('error')}); run it again with --shard {shard}"
+            raise ValueError(f"merge: shard {shard} failed ({rec.get('error')}); run it again with `shard` {shard}"
                              f"{_RERUN}")
         if status != "complete":
-            raise ValueError(f"--merge: shard {shard} did not finish (status {status!r} in {path}); "
-                             f"run it again with --shard {shard}{_RERUN}")
+            raise ValueError(f"merge: shard {shard} did not finish (status {status!r} in {path}); "
+                             f"run it again with `shard` {shard}{_RERUN}")
         theirs = rec.get("settings", {})
         for key in sorted(set(settings) | set(theirs)):
             if theirs.get(key) != settings.get(key):
-                raise ValueError(f"--merge: shard {shard} ran with other settings ({key}: {theirs.get(key)!r}, "
+                raise ValueError(f"merge: shard {shard} ran with other settings ({key}: {theirs.get(key)!r}, "
                                  f"the merge has {settings.get(key)!r})")
         records.append(rec)
     return records

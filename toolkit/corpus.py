@@ -144,7 +144,7 @@ def merge_corpus(root: str | Path, cfg: CorpusConfig) -> Path:
         for path, ok in ((subject / "subject.json", (subject / "subject.json").is_file()),
                          (run, finished(run, cfg.iterations)), (trip, trip.is_file())):
             if not ok:
-                raise ValueError(f"--merge: subject {name} is incomplete: {path} (run its shard again)")
+                raise ValueError(f"merge: subject {name} is incomplete: {path} (run its shard again)")
     _write_corpus_json(root, cfg)
     shutil.rmtree(root / SHARDS_DIR)
     return root

@@ -17,6 +17,7 @@ import sys
 from dataclasses import dataclass
 
 from trioman import __version__
+from trioman.commands.flags import command_flags, shown_message
 
 
 @dataclass(frozen=True)
@@ -118,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("TRIOMAN_DEBUG"):
             raise
         message = describe_os_error(err) if isinstance(err, OSError) else str(err)
+        message = shown_message(err, message, command_flags(cmd.name, args._module))  # parameters -> flags
         print(f"trioman {cmd.name}: error: {message}", file=sys.stderr)
         return 1
     except RecursionError:

@@ -19,7 +19,7 @@ def open_viewer(avatar: str | os.PathLike | None, motion: str | None = None, sub
 
     if avatar is None:
         if augmented is None:
-            raise ValueError("AVATAR: give an avatar folder (or --augmented DIR, whose run names its avatar)")
+            raise ValueError("avatar: give an avatar folder (or `augmented` DIR, whose run names its avatar)")
         avatar = run_avatar_path(augmented)
     av = load_avatar(avatar)
     poser = Poser(av, motion_catalog(av.skeleton, motion, subject))

@@ -93,7 +93,7 @@ def motion_catalog(skeleton, motion: str | None = None, subject: str | os.PathLi
     if motion is not None and motion not in MOTIONS:
         catalog[motion_label(motion)] = motion_from_spec(motion, skeleton)
     elif motion is not None and motion not in catalog:
-        raise ValueError(f"--motion {motion}: the shipped motion turns joints this avatar's skeleton lacks "
+        raise ValueError(f"motion {motion}: the shipped motion turns joints this avatar's skeleton lacks "
                          f"({skeleton.num_joints} joints); playable: {list(catalog) or 'none'}")
     if subject is not None:
         catalog[f"{SUBJECT_MOTION}: {Path(subject).name}"] = motion_from_subject(subject, "test").for_skeleton(skeleton)

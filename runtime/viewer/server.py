@@ -43,23 +43,23 @@ def check_port(host: str, port: int) -> None:
     """Refuse an address this machine does not have (viser would wait forever) and a port another program
     holds (viser would silently take the next one), by binding them once; port 0 checks the address."""
     if not 0 <= port <= 65535:
-        raise ValueError(f"--port: must lie in [0, 65535], got {port}")
+        raise ValueError(f"port: must lie in [0, 65535], got {port}")
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as err:
-        raise ValueError(f"--host: cannot resolve {host!r} ({err.strerror})") from None
+        raise ValueError(f"host: cannot resolve {host!r} ({err.strerror})") from None
     family, _, _, _, address = infos[0]
     with socket.socket(family, socket.SOCK_STREAM) as s:
         try:
             s.bind(address)
         except OSError as err:
             if err.errno == errno.EADDRINUSE:
-                raise ValueError(f"--port: {host}:{port} is already in use (another viewer or server); pick another "
-                                 f"with --port, or --port 0 for any free one") from None
+                raise ValueError(f"port: {host}:{port} is already in use (another viewer or server); pick another "
+                                 f"with `port`, or `port` 0 for any free one") from None
             if err.errno == errno.EADDRNOTAVAIL:
-                raise ValueError(f"--host: {host} is not an address of this machine; use 127.0.0.1 (this machine "
+                raise ValueError(f"host: {host} is not an address of this machine; use 127.0.0.1 (this machine "
                                  f"only, the default) or one of its own addresses") from None
-            raise ValueError(f"--host/--port: cannot listen on {host}:{port} ({err.strerror})") from None
+            raise ValueError(f"host and port: cannot listen on {host}:{port} ({err.strerror})") from None
 
 
 def is_local_only(host: str) -> bool:
@@ -107,7 +107,7 @@ class AvatarViewer:
             self.server = viser.ViserServer(host=config.host, port=config.port, verbose=False)
         if config.port and self.server.get_port() != config.port:  # taken between the check and the bind
             self.server.stop()
-            raise ValueError(f"--port: {config.host}:{config.port} is already in use; pick another with --port")
+            raise ValueError(f"port: {config.host}:{config.port} is already in use; pick another with `port`")
         self.server.scene.set_up_direction("+z")
         N = poser.avatar.num_gaussians
         self._buffer = np.zeros((N, 8), np.uint32)
@@ -142,14 +142,14 @@ class AvatarViewer:
             self._show_stats()
             return changed
 
-    def time_updates(self, n: int) -> dict[str, float]:
-        """Time ``n`` pose updates over the motion's frames (a played clip). -> median ms: posing (FK + LBS +
-        the pose-dependent graph), packing (the changed arrays into the buffer, queued to the clients), total."""
-        if n < 1:
-            raise ValueError(f"--time: must be >= 1, got {n}")
+    def time_updates(self, updates: int) -> dict[str, float]:
+        """Time ``updates`` pose updates over the motion's frames (a played clip). -> median ms: posing (FK + LBS
+        + the pose-dependent graph), packing (the changed arrays into the buffer, queued to the clients), total."""
+        if updates < 1:
+            raise ValueError(f"updates: must be >= 1, got {updates}")
         pose, send = [], []
         frames = self.poser.motion.num_frames
-        for k in range(n):
+        for k in range(updates):
             self.controls.frame = (self.controls.frame + 1) % frames if frames > 1 else 0
             self.controls.bends = {} if frames > 1 else {"root": float(k % 2)}  # a one-frame motion: turn instead
             self.refresh()

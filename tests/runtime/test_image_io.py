@@ -192,7 +192,7 @@ def test_atomic_folder_success_failure_and_overwrite(tmp_path):
         with atomic_folder(target, overwrite=True):  # no kind: nothing is recognised, nothing replaced
             pass
     kind = image_io.FolderKind("test", "m.json", files=("m.json", "b.bin"), folders=(("sub", ("*.npz",)),))
-    with pytest.raises(FileExistsError, match=r"out: folder exists and is not empty \(pass overwrite=True"):
+    with pytest.raises(FileExistsError, match=r"out: folder exists and is not empty \(give `overwrite` to replace it\)"):
         with atomic_folder(target, kind=kind):
             pass
     with atomic_folder(target, overwrite=True, kind=kind) as tmp:
@@ -361,7 +361,7 @@ def _folder(root, files):
 def test_overwrite_replaces_only_a_folder_of_its_own_kind(tmp_path, files, foreign, why):
     out = _folder(tmp_path / "out", files)
     before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
-    with pytest.raises(FileExistsError, match=rf"--overwrite: {out / foreign} was not written by trioman \({why}"):
+    with pytest.raises(FileExistsError, match=rf"^overwrite: {out / foreign} was not written by trioman \({why}"):
         with atomic_folder(out, overwrite=True, kind=SUBJECTISH) as tmp:
             write_synced(tmp / "thing.json", b"{}")
     with pytest.raises(FileExistsError, match=rf"holds {out / foreign}, which trioman did not write"):

@@ -35,7 +35,7 @@ def test_two_jobs_of_one_shard_started_together_run_once(tmp_path):
         t.join(10)
     assert len(inside) == 1 and len(refused) == jobs - 1
     lock = tmp_path / "shards" / "1-of-3.lock"
-    assert all(r.startswith("--shard 1/3: another job of this shard is running (") and str(lock) in r for r in refused)
+    assert all(r.startswith("shard 1/3: another job of this shard is running (") and str(lock) in r for r in refused)
     assert not lock.exists()  # released at the end
     assert json.loads((tmp_path / "shards" / "1-of-3.json").read_text())["status"] == "complete"
 

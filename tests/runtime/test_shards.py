@@ -63,7 +63,7 @@ def test_a_corrupt_shard_record_is_named_and_nothing_moves(inputs, tmp_path, cap
 def test_shard_rule_and_parse():
     assert Shard.parse("1/3").take(list("abcdefg")) == ["b", "e"]
     assert Shard.parse(" 0/1 ").name == "0-of-1"
-    with pytest.raises(ValueError, match=r"--shard: expected I/N with 0 <= I < N \(e.g. 0/4\), got '3/3'"):
+    with pytest.raises(ValueError, match=r"^shard: expected I/N with 0 <= I < N \(e.g. 0/4\), got '3/3'"):
         Shard.parse("3/3")
 
 

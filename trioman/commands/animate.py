@@ -1,12 +1,16 @@
 """``trioman animate AVATAR --motion M --out out.mp4``: an avatar driven by a motion, as an MP4 (no torch).
 
-The library: trioman.runtime.animate. Module contract (trioman/cli.py): standard-library imports only
-at module level.
+The library: trioman.runtime.animate, whose errors name its parameters (``size: ...``); trioman/cli.py shows
+them with ``FLAGS``. Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
 from __future__ import annotations
 
 import argparse
+
+# The parameters the library's errors name -> the flags as typed (trioman/commands/flags.py).
+FLAGS = {"avatar": "AVATAR", "motion": "--motion", "out": "--out", "azimuth": "--azimuth", "elevation": "--elevation",
+         "size": "--size", "background": "--background"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+# The parameters the library's errors name (runtime.image_io.check_folder_target) -> the flags as typed; trioman/cli.py
+# shows the errors with them (trioman/commands/flags.py).
+FLAGS = {"overwrite": "--overwrite"}
+
 
 def _body_arguments(parser: argparse.ArgumentParser, gender: str | None, num_betas: bool) -> None:
     parser.add_argument("--body-model-dir", required=True, metavar="DIR",

@@ -5,6 +5,7 @@
 --camera: ``front`` (default), ``AZ,EL`` in degrees about the posed body (0,0 = in front, framed to
           fit), or ``subject`` (the camera of the subject frame given with --pose).
 
+The library's errors name its parameters (``size: ...``); trioman/cli.py shows them with ``FLAGS``.
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
@@ -12,6 +13,9 @@ from __future__ import annotations
 
 import argparse
 import math
+
+# The parameters the library's errors name (trioman.runtime.animate's checks) -> the flags as typed.
+FLAGS = {"avatar": "AVATAR", "size": "--size", "background": "--background"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

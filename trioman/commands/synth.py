@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+# The parameters the library's errors name (runtime.image_io.check_folder_target) -> the flags as typed; trioman/cli.py
+# shows the errors with them (trioman/commands/flags.py).
+FLAGS = {"overwrite": "--overwrite"}
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output subject folder")

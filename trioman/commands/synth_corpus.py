@@ -2,11 +2,16 @@
 Refiner and Examiner (toolkit/corpus.py). Resumes where an interrupted build stopped.
 
 ``--shard I/N`` builds only the subjects of shard I of N (N jobs, on one machine or many sharing DIR);
-``--merge`` with the same settings then checks every shard and writes corpus.json (docs/scaling.md)."""
+``--merge`` with the same settings then checks every shard and writes corpus.json (docs/scaling.md).
+The library's errors name its parameters (``shard: ...``, ``merge: ...``); trioman/cli.py shows them with
+``FLAGS`` (trioman/commands/flags.py)."""
 
 from __future__ import annotations
 
 import argparse
+
+# The parameters the library's errors name (runtime/shards.py, toolkit/corpus.py) -> the flags as typed.
+FLAGS = {"shard": "--shard", "merge": "--merge"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

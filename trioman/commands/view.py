@@ -3,13 +3,18 @@
 The avatar's Gaussians as splats in the browser (viser), posed live by the runtime: a motion picker,
 play/pause, a frame slider, the rest pose, pose-dependent terms on/off and a bend slider per joint
 group. ``--subject`` adds the subject's training cameras (click one: its real frame beside the render);
-``--augmented`` shows an augment output. The library: trioman.runtime.viewer. Needs the ``viewer`` extra.
+``--augmented`` shows an augment output. The library: trioman.runtime.viewer, whose errors name its parameters
+(``port: ...``); trioman/cli.py shows them with ``FLAGS``. Needs the ``viewer`` extra.
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
 from __future__ import annotations
 
 import argparse
+
+# The parameters the library's errors name -> the flags as typed (trioman/commands/flags.py).
+FLAGS = {"avatar": "AVATAR", "motion": "--motion", "subject": "--subject", "augmented": "--augmented", "host": "--host",
+         "port": "--port", "updates": "--time"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -266,7 +266,7 @@ def test_a_kept_frame_linked_outside_the_folder_is_not_read(augmented, tmp_path)
 def test_an_address_this_machine_lacks_is_one_line(avatar_dir, capsys):
     from trioman.runtime.viewer.server import check_port
 
-    with pytest.raises(ValueError, match="--host: 192.0.2.1 is not an address of this machine"):
+    with pytest.raises(ValueError, match="^host: 192.0.2.1 is not an address of this machine"):
         check_port("192.0.2.1", 0)  # TEST-NET-1: no machine has it
     assert main(["view", str(avatar_dir), "--host", "192.0.2.1", "--port", "0"]) == 1
     assert capsys.readouterr().err.startswith("trioman view: error: --host: 192.0.2.1 is not an address of this machine")
