@@ -40,8 +40,8 @@ def check_options(per_frame: Any, threshold: Any, seed: Any, frames: Any, limit:
 
 
 def check_keep_carried(keep_carried: Any, refiner: Any) -> None:
-    if not isinstance(keep_carried, bool):
-        raise ValueError(f"keep_carried: must be true or false, got {keep_carried!r}")
+    if keep_carried is not None and not isinstance(keep_carried, bool):
+        raise ValueError(f"keep_carried: must be true, false or None (with a Refiner: true), got {keep_carried!r}")
     if keep_carried and refiner is None:
         raise ValueError("keep_carried: takes the Refiner's output where nothing was carried; give `refiner` too "
                          "(without a Refiner the pseudo-GT is the aligned kind, which keeps the carried pixels already)")

@@ -47,7 +47,7 @@ def augment(
     shard: Shard | None = None,
     merge: bool = False,
     mask: str = "carried",
-    keep_carried: bool = False,
+    keep_carried: bool | None = None,
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
     optional Examiner (ONNX files) into the folder ``out`` (package doc). -> the augment.json content.
@@ -59,7 +59,7 @@ def augment(
     mask: the pseudo frames' mask, "carried" (the body mesh and the source frame's mask carried to the draw) or
     "alpha" (the avatar render's own alpha); runtime/pseudo_gt.py.
     keep_carried: with a Refiner, keep the real pixels carried to the draw and take the Refiner's output only
-    where nothing was carried (``PseudoConfig.keep_carried``).
+    where nothing was carried (``PseudoConfig.keep_carried``); None (default): whenever there is a Refiner.
     Every input is checked before any work; a bad one raises ValueError / FileNotFoundError /
     FileExistsError / FormatError naming the parameter and the value.
     shard: do only that shard's frames, in out/shards/I-of-N (-> its record); merge: assemble ``out``
@@ -80,6 +80,7 @@ def augment(
         raise ValueError("examiner: chooses among refined candidates; give `refiner` too (without a Refiner the "
                          "pseudo-GT is the aligned kind: the render with real pixels carried through the body mesh)")
     check_keep_carried(keep_carried, refiner)
+    keep_carried = refiner is not None if keep_carried is None else keep_carried
     examiner_path = None if examiner is None else existing(examiner, "examiner", "Examiner ONNX file")
     if shard is not None and merge:
         raise ValueError("merge: runs after the `shard` jobs, not with `shard`")

@@ -63,7 +63,7 @@ def inputs(tiny_run, tmp_path_factory):  # noqa: F811
 
 
 def run(inputs, out, examiner=True, **kw):
-    kw = {"frames": "all", "limit": LIMIT, "seed": 7, "progress": False, **kw}
+    kw = {"frames": "all", "limit": LIMIT, "seed": 7, "progress": False, "keep_carried": False, **kw}  # the Refiner's frames
     return augment(inputs.subject, inputs.avatar, inputs.refiner, out, inputs.examiner if examiner else None, **kw)
 
 
@@ -344,7 +344,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, str
     monkeypatch.setattr(image_io, "open", filling, raising=False)
     argv = ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
             "--examiner", str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT),
-            "--seed", "7", "--quiet"]
+            "--seed", "7", "--no-keep-carried", "--quiet"]
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
@@ -416,14 +416,15 @@ def test_without_a_refiner_the_frames_are_aligned_with_per_pixel_weights(inputs,
 
 
 def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs, tmp_path, capsys):
-    """--keep-carried: where a real pixel was carried to the draw the pseudo-GT shows it, elsewhere the Refiner's
-    output, the same bytes as without the flag; recorded in the settings and the subject; refused without --refiner;
-    a resume with the other value is refused, and a run that did not record it resumes as one without it."""
+    """--keep-carried (the default with --refiner): where a real pixel was carried to the draw the pseudo-GT shows
+    it, elsewhere the Refiner's output, the same bytes as with --no-keep-carried; recorded in the settings and the
+    subject; refused without --refiner; a resume with the other value is refused, and a run that did not record it
+    resumes as one without it."""
     base = ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
             "--frames", "all", "--limit", "1", "--seed", "7", "--quiet"]
     plain, kept = tmp_path / "plain", tmp_path / "kept"
-    assert main(base + ["--out", str(plain)]) == 0
-    assert main(base + ["--out", str(kept), "--keep-carried"]) == 0
+    assert main(base + ["--out", str(plain), "--no-keep-carried"]) == 0
+    assert main(base + ["--out", str(kept)]) == 0
     capsys.readouterr()
     a, b = load_subject(plain), load_subject(kept)
     assert a.frame_names.tolist() == b.frame_names.tolist() and b.num_frames == 2  # no Examiner: both candidates
@@ -454,16 +455,16 @@ def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs,
     assert not no.exists()
     with pytest.raises(ValueError, match="^keep_carried: takes the Refiner's output .* give `refiner` too"):
         augment(inputs.subject, inputs.avatar, None, no, keep_carried=True, progress=False)
-    with pytest.raises(ValueError, match="^keep_carried: must be true or false, got 1"):
+    with pytest.raises(ValueError, match="^keep_carried: must be true, false or None .*, got 1"):
         augment(inputs.subject, inputs.avatar, inputs.refiner, no, keep_carried=1, progress=False)
     assert not no.exists()
 
-    assert main(base + ["--out", str(plain), "--resume", "--keep-carried"]) == 1
+    assert main(base + ["--out", str(plain), "--resume"]) == 1  # the default keeps them
     err = capsys.readouterr().err
     assert f"--resume: keep_carried differs from the run in {plain} (was False, now True); use the same inputs, or " \
            f"--overwrite to start again" in err, err
     meta = json.loads((plain / AUGMENT_JSON).read_text())
     del meta["settings"]["keep_carried"]  # a run of a version that did not record it
     (plain / AUGMENT_JSON).write_text(json.dumps(meta))
-    assert main(base + ["--out", str(plain), "--resume"]) == 0
+    assert main(base + ["--out", str(plain), "--resume", "--no-keep-carried"]) == 0
     assert json.loads((plain / AUGMENT_JSON).read_text())["timing"]["frames_resumed"] == 1

@@ -47,9 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mask", choices=("carried", "alpha"), default="carried",
                         help="the pseudo frames' mask: the body mesh plus the source frame's mask carried to the draw "
                              "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
-    parser.add_argument("--keep-carried", action="store_true",
+    parser.add_argument("--keep-carried", action=argparse.BooleanOptionalAction, default=None,
                         help="with --refiner: keep the real pixels carried to the draw and take the Refiner's output "
-                             "only where nothing was carried")
+                             "only where nothing was carried (default with --refiner; measured best, "
+                             "docs/augmentation.md)")
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: its own)")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")

@@ -41,9 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
     aug.add_argument("--augment-unknown-weight", type=float, default=None,
                      help="--augment aligned: loss weight of body pixels no real pixel reached (default 0)")
-    aug.add_argument("--augment-keep-carried", action="store_const", const=True, default=None,
+    aug.add_argument("--augment-keep-carried", action=argparse.BooleanOptionalAction, default=None,
                      help="--augment refined|examined: keep the real pixels carried to the draw and take the "
-                          "Refiner's output only where nothing was carried")
+                          "Refiner's output only where nothing was carried (default with those kinds; measured best, "
+                          "docs/augmentation.md)")
     aug.add_argument("--augment-sources", type=int, default=None,
                      help="training frames the aligned reference fuses per draw (default 3)")
     parser.add_argument("--resume", action="store_true",
@@ -112,4 +113,6 @@ def augment_config(args: argparse.Namespace):
             if not Path(given[key]).exists():
                 raise FileNotFoundError(f"--{key}: not found: {given[key]}")
             given[key] = str(Path(given[key]).resolve())
+    if args.augment in ("refined", "examined"):
+        given.setdefault("keep_carried", True)
     return AugmentConfig(mode=args.augment, **given)
