@@ -136,7 +136,7 @@ class Augmenter:
         self.pseudo_cfg = cfg.pseudo()
         self.refiner = load_pseudo_refiner(cfg.refiner) if cfg.refiner else None
         if self.refiner is not None:
-            self.refiner.check_size(frames.height, frames.width, "--refiner")
+            self.refiner.check_size(frames.height, frames.width)
         use_examiner = cfg.mode == "examined" and (cfg.candidates > 1 or cfg.threshold is not None)
         self.examiner = load_pseudo_examiner(cfg.examiner) if use_examiner else None
         self.rng = np.random.default_rng([int(seed), 0xA06])  # apart from the real-frame draws

@@ -8,7 +8,8 @@ Both sides take and return numpy HWC float32 images in [0, 1], as the runtime's 
     examiner.score(candidates [B, H, W, 3], real [H, W, 3]) -> [B] scores in [0, 1]
 
 ``refiner.conditions`` says which inputs it reads ("none": coarse; "tex": + reference; "tex+geo":
-+ normal). The Examiner resizes to its own input size with cv2.INTER_AREA (as the runtime does).
++ normal). The Examiner resizes to its own input size with cv2.INTER_AREA (as the runtime does). Errors name
+the model's parameter (``refiner: ...``, ``examiner: ...``); the commands show their flags.
 """
 
 from __future__ import annotations
@@ -40,10 +41,12 @@ class TorchRefiner:
         self.conditions: str = model.config.conditions
         self.multiple: int = model.total_downsample
 
-    def check_size(self, height: int, width: int, flag: str) -> None:
+    def check_size(self, height: int, width: int, name: str = "refiner") -> None:
+        """ValueError naming ``name`` (the parameter or field that gave this Refiner) unless it takes ``height``
+        x ``width`` images."""
         if height % self.multiple or width % self.multiple:
-            raise ValueError(f"{flag}: {self.path} (Refiner) needs image sides that are multiples of {self.multiple}, "
-                             f"the training frames are {width}x{height} (W x H); change --image-scale")
+            raise ValueError(f"{name}: {self.path} (Refiner) needs image sides that are multiples of {self.multiple}, "
+                             f"the training frames are {width}x{height} (W x H); change `image_scale`")
 
     @torch.no_grad()
     def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray:
@@ -61,11 +64,13 @@ class OnnxRefiner:
         self.model, self.path = load_model(path, kind="refiner"), path
         self.conditions: str = self.model.conditions
 
-    def check_size(self, height: int, width: int, flag: str) -> None:
+    def check_size(self, height: int, width: int, name: str = "refiner") -> None:
+        """ValueError naming ``name`` (the parameter or field that gave this Refiner) unless it takes ``height``
+        x ``width`` images."""
         if tuple(self.model.size) != (height, width):
             h, w = self.model.size
-            raise ValueError(f"{flag}: {self.path} (Refiner ONNX) takes {w}x{h} (W x H) images, the training frames are "
-                             f"{width}x{height}; export it at that size or train at another --image-scale")
+            raise ValueError(f"{name}: {self.path} (Refiner ONNX) takes {w}x{h} (W x H) images, the training frames are "
+                             f"{width}x{height}; export it at that size or train at another `image_scale`")
 
     def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray:
         return self.model.refine(coarse, reference=reference, normal=normal)
@@ -94,53 +99,54 @@ class TorchExaminer:
         return self.model(c, r).numpy()
 
 
-def _checkpoint_of(path: Path, flag: str, kind: str) -> Path:
-    """A run folder's checkpoint (an Examiner run's validated selected.pt first) or the file itself."""
+def _checkpoint_of(path: Path, kind: str) -> Path:
+    """A run folder's checkpoint (an Examiner run's validated selected.pt first) or the file itself; ``kind``
+    ("refiner" or "examiner") is also the name the error starts with."""
     if path.is_file():
         return path
     if kind == "examiner" and (path / SELECTED).is_file():
         return path / SELECTED
     ckpt = latest_checkpoint(path)
     if ckpt is None:
-        raise FileNotFoundError(f"{flag}: {path} holds no checkpoint (expected a {kind} run folder, a .pt checkpoint "
+        raise FileNotFoundError(f"{kind}: {path} holds no checkpoint (expected a {kind} run folder, a .pt checkpoint "
                                 f"or an exported .onnx)")
     return ckpt
 
 
-def load_pseudo_refiner(path: str | os.PathLike, flag: str = "--refiner") -> TorchRefiner | OnnxRefiner:
-    """The Refiner at ``path``: a ``train-refiner`` run folder, one of its checkpoints, or an ONNX file."""
+def load_pseudo_refiner(refiner: str | os.PathLike) -> TorchRefiner | OnnxRefiner:
+    """The Refiner at ``refiner``: a ``train-refiner`` run folder, one of its checkpoints, or an ONNX file."""
     from trioman.runtime.formats import FormatError
     from trioman.toolkit.refiner import load_refiner
 
-    path = Path(path)
+    path = Path(refiner)
     if not path.exists():
-        raise FileNotFoundError(f"{flag}: not found: {path}")
+        raise FileNotFoundError(f"refiner: not found: {path}")
     try:
         if path.suffix == ".onnx":
             return OnnxRefiner(path)
-        ckpt = _checkpoint_of(path, flag, "refiner")
+        ckpt = _checkpoint_of(path, "refiner")
         return TorchRefiner(load_refiner(ckpt), ckpt)
     except (FormatError, TypeError, KeyError) as err:
-        raise ValueError(f"{flag}: {path} is not a Refiner ({type(err).__name__}: {err})") from None
+        raise ValueError(f"refiner: {path} is not a Refiner ({type(err).__name__}: {err})") from None
     except ValueError as err:
-        raise ValueError(f"{flag}: {err}") from None
+        raise ValueError(f"refiner: {err}") from None
 
 
-def load_pseudo_examiner(path: str | os.PathLike, flag: str = "--examiner") -> PseudoExaminer:
-    """The Examiner at ``path``: a ``train-examiner`` run folder, one of its checkpoints, or an ONNX file."""
+def load_pseudo_examiner(examiner: str | os.PathLike) -> PseudoExaminer:
+    """The Examiner at ``examiner``: a ``train-examiner`` run folder, one of its checkpoints, or an ONNX file."""
     from trioman.runtime.formats import FormatError
     from trioman.toolkit.examiner.train import load_examiner
 
-    path = Path(path)
+    path = Path(examiner)
     if not path.exists():
-        raise FileNotFoundError(f"{flag}: not found: {path}")
+        raise FileNotFoundError(f"examiner: not found: {path}")
     try:
         if path.suffix == ".onnx":
             from trioman.runtime.models import load_model
 
             return load_model(path, kind="examiner")
-        return TorchExaminer(load_examiner(_checkpoint_of(path, flag, "examiner")))
+        return TorchExaminer(load_examiner(_checkpoint_of(path, "examiner")))
     except (FormatError, TypeError, KeyError) as err:
-        raise ValueError(f"{flag}: {path} is not an Examiner ({type(err).__name__}: {err})") from None
+        raise ValueError(f"examiner: {path} is not an Examiner ({type(err).__name__}: {err})") from None
     except ValueError as err:
-        raise ValueError(f"{flag}: {err}") from None
+        raise ValueError(f"examiner: {err}") from None

@@ -173,20 +173,20 @@ def test_detail_only_pseudo_frames_keep_the_coarse_colours(subject, models):
 
 
 def test_bad_model_files_give_one_line_errors(models, tmp_path):
-    with pytest.raises(ValueError, match=r"--refiner: .*config: unknown Refiner config fields"):
+    with pytest.raises(ValueError, match=r"^refiner: .*config: unknown Refiner config fields"):
         load_pseudo_refiner(models["examiner"])  # an Examiner given as the Refiner
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match=r"--examiner: .*junk.pt: not a readable checkpoint"):
+    with pytest.raises(ValueError, match=r"^examiner: .*junk.pt: not a readable checkpoint"):
         load_pseudo_examiner(junk)
-    with pytest.raises(FileNotFoundError, match="--refiner: not found"):
+    with pytest.raises(FileNotFoundError, match="^refiner: not found"):
         load_pseudo_refiner(tmp_path / "missing")
     (tmp_path / "empty_run").mkdir()
-    with pytest.raises(FileNotFoundError, match="--examiner: .*empty_run holds no checkpoint"):
+    with pytest.raises(FileNotFoundError, match="^examiner: .*empty_run holds no checkpoint"):
         load_pseudo_examiner(tmp_path / "empty_run")
     refiner = load_pseudo_refiner(models["refiner"])
-    with pytest.raises(ValueError, match=r"--refiner: .*multiples of 16.*40x24"):
-        refiner.check_size(24, 40, "--refiner")
+    with pytest.raises(ValueError, match=r"^refiner: .*multiples of 16.*40x24 \(W x H\); change `image_scale`"):
+        refiner.check_size(24, 40)
 
 
 def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, tmp_path):
@@ -201,8 +201,8 @@ def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, 
     coarse, ref, normal = (rng.random((2, SIZE, SIZE, 3), dtype=np.float32) for _ in range(3))
     np.testing.assert_allclose(onnx_r.refine(coarse, ref, normal), torch_r.refine(coarse, ref, normal), atol=1e-3)
     np.testing.assert_allclose(onnx_e.score(coarse, ref[0]), torch_e.score(coarse, ref[0]), atol=1e-4)
-    with pytest.raises(ValueError, match=r"--refiner: .*r.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
-        onnx_r.check_size(64, 64, "--refiner")
+    with pytest.raises(ValueError, match=r"^refiner: .*r.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
+        onnx_r.check_size(64, 64)
 
 
 def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys):
@@ -226,3 +226,20 @@ def test_augment_alone_means_aligned_with_the_carried_mask(subject, tmp_path):
     args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "coarse",
                                       "--augment-mask", "alpha", "--augment-sources", "1"])
     assert (augment_config(args).mask, augment_config(args).align_sources) == ("alpha", 1)
+
+
+def test_a_refiner_keeps_the_carried_pixels_unless_told_not_to(subject, tmp_path):
+    """--augment refined|examined: keep_carried by default (the measured best); --no-augment-keep-carried turns it off;
+    with a kind without a Refiner it is refused by name."""
+    from trioman.commands.train import augment_config
+    from trioman.cli import build_parser
+
+    ref = tmp_path / "r.onnx"
+    ref.write_bytes(b"")
+    base = ["train", str(subject), "--out", str(tmp_path / "x")]
+    assert augment_config(build_parser().parse_args(base + ["--augment", "refined", "--refiner", str(ref)])).keep_carried
+    assert not augment_config(build_parser().parse_args(
+        base + ["--augment", "refined", "--refiner", str(ref), "--no-augment-keep-carried"])).keep_carried
+    assert not augment_config(build_parser().parse_args(base + ["--augment"])).keep_carried
+    with pytest.raises(ValueError, match="augment_keep_carried: needs a Refiner"):
+        augment_config(build_parser().parse_args(base + ["--augment", "aligned", "--augment-keep-carried"]))
