@@ -15,7 +15,7 @@ from trioman.runtime.shards import Shard  # noqa: E402
 
 def argv(inputs, out, *extra):  # noqa: F811 (the fixture) -- the flags of test_augment's run()
     return ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner), "--examiner",
-            str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT), "--seed", "7", "--quiet", *extra]
+            str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT), "--seed", "7", "--no-keep-carried", "--quiet", *extra]
 
 
 def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, capsys):  # noqa: F811
