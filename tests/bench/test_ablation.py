@@ -135,6 +135,10 @@ def test_summary_verdicts_follow_the_numbers():
     assert s["seed_spread_psnr"]["baseline"] == pytest.approx(0.2) and s["mean"]["GRE"]["lpips"] is None
     res["a"]["GR_none"] = runs(21.2)
     assert not summarise(res)["verdict"]["table2_order_holds"]
+    one = {"a": {**res["a"], "GRE": runs(21.3)}}  # GRE with one seed: only the baseline's spread counts
+    assert summarise(one)["seed_spread_psnr"] == {"baseline": pytest.approx(0.2)}
+    one["a"]["baseline"] = runs(20.0)  # no run with two seeds: no spread, no verdict on it
+    assert summarise(one)["seed_spread_psnr"] == {} and "gain_exceeds_twice_seed_spread" not in summarise(one)["verdict"]
     # against the ceiling: shares of its gain over the equal-steps control, the unmasked check
     res["a"]["ceiling"] = runs(22.1)
     s = summarise(res)
