@@ -4,7 +4,9 @@
 pose is LBS (numpy) and, with pose dependence, the two small pose MLPs. ``pose_dependent_onnx(model)``
 writes those as an ONNX graph (opset 17) with the pose-independent first-layer term
 ``feat_in(triplane features)`` folded in as a constant: input ``pose`` [J, 3] axis-angle, outputs
-``d_offset`` [N, 3], ``d_log_scale`` [N, S], ``d_rgb`` [N, 3]. The graph is built node by node (the
+``d_offset`` [M, 3], ``d_log_scale`` [M, S], ``d_rgb`` [M, 3] at the model's ``pose_points`` (M = N, or
+the coarse level's vertices, whose deltas the runtime carries to the Gaussians with the
+``pose_interpolation`` arrays: format version 2). The graph is built node by node (the
 pose features are Rodrigues + the 6D rotation, as ``GaussianAvatar.pose_features``), checked with
 ``onnx.checker`` (full check) and compared with torch under onnxruntime (``check_onnx_parity``).
 """
@@ -56,6 +58,15 @@ def bake(model: GaussianAvatar) -> dict[str, np.ndarray]:
     return arrays
 
 
+def pose_interpolation(model: GaussianAvatar) -> dict[str, np.ndarray]:
+    """The gaussians.npz arrays that carry coarse pose deltas to the Gaussians: ``pose_indices`` [N, P] int32,
+    ``pose_weights`` [N, P] float32 (the model's ``carry_pose_deltas``); empty without ``coarse_pose``."""
+    if not model.coarse_pose:
+        return {}
+    return {"pose_indices": model.pose_indices.numpy().astype(np.int32),
+            "pose_weights": model.pose_weights.float().numpy().copy()}
+
+
 def skeleton_of(model: GaussianAvatar) -> Skeleton:
     return Skeleton(tuple(model.joint_names), np.asarray(model.parents), model.joints.double().numpy())
 
@@ -99,9 +110,9 @@ def pose_dependent_onnx(model: GaussianAvatar) -> onnx.ModelProto:
     if not model.cfg.pose_dependent:
         raise ValueError("pose_dependent: this model has no pose-dependent MLPs")
     model = model.eval()
-    J, N = len(model.joint_names), model.num_gaussians
+    J, M = len(model.joint_names), model.pose_points.shape[0]
     s = 3 if model.cfg.anisotropic else 1
-    feats = model.triplane(model.canonical)
+    feats = model.triplane(model.pose_points)
     g = _Graph()
 
     # Pose features: Rodrigues on the conditioning joints, first two columns of R minus the identity's.
@@ -143,8 +154,8 @@ def pose_dependent_onnx(model: GaussianAvatar) -> onnx.ModelProto:
         W2, b2 = _linear_np(lin2)
         return g.op("Add", g.op("MatMul", h, g.const(W2, f"{prefix}.rest.2.weight")), g.const(b2, f"{prefix}.rest.2.bias"))
 
-    dgeo = mlp(model.geo_offset_net, "geo_offset")  # [N, 3 + s]
-    drgb = mlp(model.rgb_offset_net, "rgb_offset")  # [N, 3]
+    dgeo = mlp(model.geo_offset_net, "geo_offset")  # [M, 3 + s]
+    drgb = mlp(model.rgb_offset_net, "rgb_offset")  # [M, 3]
     g.op("Slice", dgeo, g.const(np.array([0], np.int64)), g.const(np.array([3], np.int64)), g.const(np.array([1], np.int64)), out=ONNX_OUTPUTS[0])
     g.op("Slice", dgeo, g.const(np.array([3], np.int64)), g.const(np.array([3 + s], np.int64)), g.const(np.array([1], np.int64)), out=ONNX_OUTPUTS[1])
     g.op("Identity", drgb, out=ONNX_OUTPUTS[2])
@@ -152,9 +163,9 @@ def pose_dependent_onnx(model: GaussianAvatar) -> onnx.ModelProto:
     graph = helper.make_graph(
         g.nodes, "trioman_pose_dependent",
         [helper.make_tensor_value_info(ONNX_INPUT, TensorProto.FLOAT, [J, 3])],
-        [helper.make_tensor_value_info(ONNX_OUTPUTS[0], TensorProto.FLOAT, [N, 3]),
-         helper.make_tensor_value_info(ONNX_OUTPUTS[1], TensorProto.FLOAT, [N, s]),
-         helper.make_tensor_value_info(ONNX_OUTPUTS[2], TensorProto.FLOAT, [N, 3])],
+        [helper.make_tensor_value_info(ONNX_OUTPUTS[0], TensorProto.FLOAT, [M, 3]),
+         helper.make_tensor_value_info(ONNX_OUTPUTS[1], TensorProto.FLOAT, [M, s]),
+         helper.make_tensor_value_info(ONNX_OUTPUTS[2], TensorProto.FLOAT, [M, 3])],
         initializer=g.inits,
     )
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="trioman")
@@ -165,12 +176,12 @@ def pose_dependent_onnx(model: GaussianAvatar) -> onnx.ModelProto:
 
 @torch.no_grad()
 def torch_pose_deltas(model: GaussianAvatar, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The torch model's pose-dependent deltas at ``pose`` [J, 3] (the reference for the ONNX graph)."""
+    """The torch model's pose-dependent deltas at ``pose`` [J, 3] at its ``pose_points`` (the reference for the
+    ONNX graph) -> d_offset [M, 3], d_log_scale [M, S], d_rgb [M, 3]."""
     s = 3 if model.cfg.anisotropic else 1
-    feats = model.triplane(model.canonical)
-    pf = model.pose_features(torch.as_tensor(np.asarray(pose), dtype=torch.float32))
-    dgeo = model.geo_offset_net(feats, pf)
-    return dgeo[:, :3].numpy(), dgeo[:, 3 : 3 + s].numpy(), model.rgb_offset_net(feats, pf).numpy()
+    deltas = model.pose_deltas(model.pose_features(torch.as_tensor(np.asarray(pose), dtype=torch.float32)))
+    d_offset, d_log_scale, d_rgb = deltas.split([3, s, 3], dim=1)
+    return d_offset.numpy(), d_log_scale.numpy(), d_rgb.numpy()
 
 
 def parity_poses(J: int, seed: int = 0) -> list[np.ndarray]:
@@ -211,13 +222,15 @@ def export_model(model: GaussianAvatar, out: str | Path, *, body_model: str, pos
     """Bake ``model`` and write an avatar folder (``overwrite`` and ``inputs``: ``save_avatar``'s).
     -> (runtime Avatar, info dict)."""
     t0 = time.perf_counter()
-    proto, parity = None, None
+    proto, parity, gaussians = None, None, bake(model)
     if pose_dependent and model.cfg.pose_dependent:
         proto = pose_dependent_onnx(model)
         parity = check_onnx_parity(model, proto)
+        gaussians |= pose_interpolation(model)
     avatar = save_avatar(
-        out, skeleton=skeleton_of(model), gaussians=bake(model), body_model=body_model,
+        out, skeleton=skeleton_of(model), gaussians=gaussians, body_model=body_model,
         pose_joints=pose_joint_names(model), pose_dependent_onnx=None if proto is None else proto.SerializeToString(),
+        pose_points=model.pose_points.shape[0] if "pose_indices" in gaussians else None,
         source=source, posed=posed, overwrite=overwrite, inputs=inputs,
     )
     return avatar, {"seconds": time.perf_counter() - t0, "onnx_parity_max_abs": parity}

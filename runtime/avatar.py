@@ -2,8 +2,10 @@
 
 An ``Avatar`` comes from ``trioman.runtime.formats.load_avatar`` (the avatar format, docs/formats.md).
 ``Avatar.gaussians(pose, trans)`` computes exactly what the torch ``GaussianAvatar`` renders (its
-"refined" set): pose-dependent deltas from the ONNX graph added to the baked attributes, activated,
-then linear blend skinning with the one sparse LBS of the runtime (``runtime.skeleton.blend_transforms``).
+"refined" set): pose-dependent deltas from the ONNX graph (carried from the graph's points to the
+Gaussians when the avatar has ``pose_points``) added to the baked attributes, activated, then linear
+blend skinning with the one sparse LBS of the runtime (``runtime.skeleton.blend_transforms``), blended
+once per distinct skinning row.
 """
 
 from __future__ import annotations
@@ -24,11 +26,28 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * x))  # overflow-free logistic
 
 
+def _distinct_rows(indices: np.ndarray, weights: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """The distinct rows of a sparse map (subdivided Gaussians share their source vertex's skinning).
+    indices, weights: [N, K] -> (indices [U, K], weights [U, K]), row_of [N] with row n = distinct row row_of[n]."""
+    rows = np.concatenate([indices.astype(np.float64), weights.astype(np.float64)], axis=1)
+    _, first, row_of = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    return (indices[first], weights[first]), row_of.reshape(-1)
+
+
+def _carry(deltas: np.ndarray, indices: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """deltas [M, C] (float32) -> [N, C]: row n = sum_p weights[n, p] deltas[indices[n, p]], in the order of p."""
+    out = weights[:, 0, None] * deltas[indices[:, 0]]
+    for p in range(1, indices.shape[1]):
+        out += weights[:, p, None] * deltas[indices[:, p]]
+    return out
+
+
 class Avatar:
     """A posable avatar. Build it with ``load_avatar``; the arrays are validated there.
 
     arrays: the gaussians.npz arrays (``positions`` [N,3], ``log_scales`` [N,S], ``rgb_logits`` [N,3],
-    ``opacities`` [N], ``local_quats`` [N,4] when anisotropic, ``skin_indices``/``skin_weights`` [N,K]).
+    ``opacities`` [N], ``local_quats`` [N,4] when anisotropic, ``skin_indices``/``skin_weights`` [N,K],
+    ``pose_indices``/``pose_weights`` [N,P] with ``meta["pose_points"]``).
     session: an onnxruntime InferenceSession of pose_dependent.onnx, or None.
     """
 
@@ -41,6 +60,7 @@ class Avatar:
         for v in self._a.values():
             v.setflags(write=False)
         self._session = session
+        self._skin_rows, self._skin_of = _distinct_rows(self._a["skin_indices"], self._a["skin_weights"])
 
     # ----------------------------------------------------------------------------------------------
 
@@ -68,12 +88,17 @@ class Avatar:
         return dict(self._a)
 
     def pose_deltas(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pose-dependent deltas from the ONNX graph. pose: [J, 3] -> d_offset [N,3], d_log_scale [N,S], d_rgb [N,3]."""
+        """Pose-dependent deltas from the ONNX graph, at the Gaussians. pose: [J, 3] -> d_offset [N,3],
+        d_log_scale [N,S], d_rgb [N,3] (float32)."""
         if self._session is None:
             raise ValueError("pose_dependent: this avatar has no pose-dependent terms (exported without them)")
         feed = {"pose": np.ascontiguousarray(pose, dtype=np.float32)}
-        d_offset, d_log_scale, d_rgb = self._session.run(["d_offset", "d_log_scale", "d_rgb"], feed)
-        return d_offset, d_log_scale, d_rgb
+        deltas = self._session.run(["d_offset", "d_log_scale", "d_rgb"], feed)
+        if "pose_indices" not in self._a:
+            return tuple(deltas)
+        widths = np.cumsum([d.shape[1] for d in deltas])[:-1]
+        carried = _carry(np.concatenate(deltas, axis=1), self._a["pose_indices"], self._a["pose_weights"])
+        return tuple(np.split(carried, widths, axis=1))
 
     def gaussians(self, pose: np.ndarray, trans: np.ndarray, pose_dependent: bool = True) -> Gaussians:
         """World-space Gaussians at a pose. pose: [J, 3] axis-angle, trans: [3] -> Gaussians (float32).
@@ -90,7 +115,7 @@ class Avatar:
             d_offset, d_log_scale, d_rgb = self.pose_deltas(pose.astype(np.float32))
             pos, log_s, logit = pos + d_offset, log_s + d_log_scale, logit + d_rgb
         A = self.skeleton.skinning_transforms(pose, trans)  # [J, 4, 4] float64
-        T = blend_transforms(A, a["skin_indices"], a["skin_weights"])  # [N, 3, 4]
+        T = blend_transforms(A, *self._skin_rows)[self._skin_of]  # [N, 3, 4]: each distinct row blended once
         means = apply_transforms(T, pos.astype(np.float64))
         N = self.num_gaussians
         if self.anisotropic:

@@ -1,9 +1,11 @@
-"""The avatar format (version 1) is a folder; docs/formats.md documents it in full.
+"""The avatar format (versions 1 and 2) is a folder; docs/formats.md documents it in full.
 
     avatar.json            metadata: format, version, body model, counts, options, source, files + sha256
     gaussians.npz          baked pose-independent attributes (pre-activation) + sparse skinning
+                           (+ version 2: the sparse map carrying pose deltas from M points to the Gaussians)
     skeleton.npz           joint_names, parents, joints (rest)
-    pose_dependent.onnx    pose [J,3] -> d_offset [N,3], d_log_scale [N,S], d_rgb [N,3] (optional)
+    pose_dependent.onnx    pose [J,3] -> d_offset [M,3], d_log_scale [M,S], d_rgb [M,3] (optional;
+                           M = N in version 1, avatar.json pose_points in version 2)
     canonical.ply          the avatar at the rest pose, standard 3DGS .ply (for splat viewers)
     posed_<name>.ply       optional extra posed .ply files
 
@@ -37,7 +39,8 @@ from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_tar
 from trioman.runtime.skeleton import Skeleton
 
 AVATAR_FORMAT = "trioman-avatar"
-AVATAR_VERSION = 1
+AVATAR_VERSION = 2  # version 2 adds pose_points and the arrays that carry the pose deltas
+AVATAR_VERSIONS = (1, 2)  # read; save_avatar writes version 1 for an avatar without pose_points
 
 AVATAR_JSON = "avatar.json"
 GAUSSIANS_NPZ = "gaussians.npz"
@@ -48,7 +51,9 @@ ONNX_INPUT = "pose"
 ONNX_OUTPUTS = ("d_offset", "d_log_scale", "d_rgb")
 WEIGHT_SUM_TOL = 1e-4
 
-_FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_quats", "skin_weights")
+_FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_quats", "skin_weights", "pose_weights")
+_INDEX_FIELDS = ("skin_indices", "pose_indices")
+_POSE_CARRY = ("pose_indices", "pose_weights")
 # What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
 AVATAR_FOLDER = FolderKind("avatar", AVATAR_JSON, files=(AVATAR_JSON, GAUSSIANS_NPZ, SKELETON_NPZ, POSE_ONNX, CANONICAL_PLY,
                                                      "posed_*.ply"))
@@ -68,13 +73,15 @@ def sha256_file(path: Path) -> str:
 
 
 def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
-    get = check_header(meta, where, AVATAR_FORMAT, AVATAR_VERSION, "avatar")
+    version = meta.get("version") if isinstance(meta, dict) else None
+    get = check_header(meta, where, AVATAR_FORMAT, version if version in AVATAR_VERSIONS else AVATAR_VERSION, "avatar")
     n = get("num_gaussians")
     if not is_int(n) or n <= 0:
         raise format_error(where, "num_gaussians", f"expected a positive integer, got {n!r}")
     for field in ("anisotropic", "pose_dependent"):
         if not isinstance(get(field), bool):
             raise format_error(where, field, f"expected true or false, got {meta[field]!r}")
+    _check_pose_points(meta, where)
     clamp = get("scale_clamp")
     if clamp != list(SCALE_CLAMP):
         raise format_error(where, "scale_clamp", f"expected {list(SCALE_CLAMP)} (log-scale clamp), got {clamp!r}")
@@ -104,6 +111,19 @@ def _check_meta(meta: Any, where: Any) -> dict[str, Any]:
     return meta
 
 
+def _check_pose_points(meta: dict[str, Any], where: Any) -> None:
+    """Version 2 requires pose_points (M, the rows of the graph's outputs) and pose-dependent terms; version 1 has none."""
+    if meta["version"] == 1:
+        if "pose_points" in meta:
+            raise format_error(where, "pose_points", "not a version 1 field (version 2 adds it)")
+        return
+    m = meta.get("pose_points")
+    if not is_int(m) or m <= 0:
+        raise format_error(where, "pose_points", f"expected a positive integer (the pose-dependent graph's rows), got {m!r}")
+    if not meta["pose_dependent"]:
+        raise format_error(where, "pose_points", "given, but pose_dependent is false (a version 2 avatar has pose-dependent terms)")
+
+
 def _check_skeleton(arrays: Mapping[str, np.ndarray], where: Any) -> Skeleton:
     for key in ("joint_names", "parents", "joints"):
         if key not in arrays:
@@ -117,7 +137,9 @@ def _check_skeleton(arrays: Mapping[str, np.ndarray], where: Any) -> Skeleton:
         raise FormatError(f"{where}: {err}") from None
 
 
-def _check_gaussians(arrays: Mapping[str, np.ndarray], where: Any, N: int, J: int, anisotropic: bool) -> dict[str, np.ndarray]:
+def _check_gaussians(arrays: Mapping[str, np.ndarray], where: Any, N: int, J: int, anisotropic: bool,
+                     M: int | None = None) -> dict[str, np.ndarray]:
+    """The gaussians.npz arrays checked (M: avatar.json pose_points, None in version 1) -> float32 / int32 arrays."""
     S = 3 if anisotropic else 1
     shapes: dict[str, tuple] = {"positions": (N, 3), "log_scales": (N, S), "rgb_logits": (N, 3), "opacities": (N,),
                                 "skin_indices": (N, None), "skin_weights": (N, None)}
@@ -125,14 +147,19 @@ def _check_gaussians(arrays: Mapping[str, np.ndarray], where: Any, N: int, J: in
         shapes["local_quats"] = (N, 4)
     elif "local_quats" in arrays:
         raise format_error(where, "local_quats", "present, but avatar.json says the avatar is isotropic (anisotropic: false)")
+    if M is not None:
+        shapes |= {key: (N, None) for key in _POSE_CARRY}
+    for key in _POSE_CARRY:
+        if M is None and key in arrays:
+            raise format_error(where, key, "present, but avatar.json has no pose_points (a version 2 field)")
     out: dict[str, np.ndarray] = {}
     for key, want in shapes.items():
         if key not in arrays:
             raise format_error(where, key, f"missing array (has: {sorted(arrays)})")
         a = np.asarray(arrays[key])
-        kinds = "iu" if key == "skin_indices" else "fiu"
+        kinds = "iu" if key in _INDEX_FIELDS else "fiu"
         if a.dtype.kind not in kinds:
-            raise format_error(where, key, f"expected {'integers' if key == 'skin_indices' else 'floats'}, got dtype {a.dtype}")
+            raise format_error(where, key, f"expected {'integers' if key in _INDEX_FIELDS else 'floats'}, got dtype {a.dtype}")
         if a.ndim != len(want) or any(w is not None and s != w for s, w in zip(a.shape, want)):
             if a.ndim >= 1 and a.shape[0] != N and a.ndim == len(want):
                 raise format_error(where, key, f"{a.shape[0]} Gaussians, but avatar.json num_gaussians is {N}")
@@ -145,28 +172,38 @@ def _check_gaussians(arrays: Mapping[str, np.ndarray], where: Any, N: int, J: in
                 first = int(np.flatnonzero(bad.reshape(N, -1).any(axis=1))[0])
                 raise format_error(where, key, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), first at Gaussian {first}")
         out[key] = a
-    idx, w = out["skin_indices"], out["skin_weights"]
-    if idx.shape != w.shape:
-        raise format_error(where, "skin_weights", f"shape {list(w.shape)} differs from skin_indices {list(idx.shape)}")
-    if idx.shape[1] == 0:
-        raise format_error(where, "skin_indices", "no influences (K = 0)")
-    if idx.min() < 0 or idx.max() >= J:
-        raise format_error(where, "skin_indices", f"joint indices must lie in [0, {J}) (skeleton.npz has {J} joints), got [{idx.min()}, {idx.max()}]")
-    out["skin_indices"] = idx.astype(np.int32)
-    if np.any(w < 0):
-        raise format_error(where, "skin_weights", f"{int((w < 0).sum())} negative weight(s)")
-    sums = w.sum(axis=1, dtype=np.float64)
-    if np.any(np.abs(sums - 1.0) > WEIGHT_SUM_TOL):
-        worst = int(np.argmax(np.abs(sums - 1.0)))
-        raise format_error(where, "skin_weights", f"rows must sum to 1, Gaussian {worst} sums to {sums[worst]:.6f}")
+    _check_rows(out, where, "skin", J, f"joint indices must lie in [0, {J}) (skeleton.npz has {J} joints)")
+    if M is not None:
+        _check_rows(out, where, "pose", M, f"pose point indices must lie in [0, {M}) (avatar.json pose_points)")
     o = out["opacities"]
     if np.any((o < 0) | (o > 1)):
         raise format_error(where, "opacities", f"values must lie in [0, 1], got [{o.min()}, {o.max()}]")
     return out
 
 
+def _check_rows(out: dict[str, np.ndarray], where: Any, prefix: str, cols: int, bound: str) -> None:
+    """``<prefix>_indices`` / ``<prefix>_weights`` [N, K] as a sparse map of rows (in place: indices -> int32):
+    the same shape, K >= 1, indices in [0, cols) (``bound`` says so), weights >= 0 summing to 1 per row."""
+    ikey, wkey = f"{prefix}_indices", f"{prefix}_weights"
+    idx, w = out[ikey], out[wkey]
+    if idx.shape != w.shape:
+        raise format_error(where, wkey, f"shape {list(w.shape)} differs from {ikey} {list(idx.shape)}")
+    if idx.shape[1] == 0:
+        raise format_error(where, ikey, "no influences (K = 0)")
+    if idx.min() < 0 or idx.max() >= cols:
+        raise format_error(where, ikey, f"{bound}, got [{idx.min()}, {idx.max()}]")
+    out[ikey] = idx.astype(np.int32)
+    if np.any(w < 0):
+        raise format_error(where, wkey, f"{int((w < 0).sum())} negative weight(s)")
+    sums = w.sum(axis=1, dtype=np.float64)
+    if np.any(np.abs(sums - 1.0) > WEIGHT_SUM_TOL):
+        worst = int(np.argmax(np.abs(sums - 1.0)))
+        raise format_error(where, wkey, f"rows must sum to 1, Gaussian {worst} sums to {sums[worst]:.6f}")
+
+
 def _open_onnx(model: Path | bytes, where: Any, J: int, N: int, S: int) -> Any:
-    """An onnxruntime session (CPU) of the pose-dependent graph, its inputs/outputs checked and run once."""
+    """An onnxruntime session (CPU) of the pose-dependent graph (N output rows: the Gaussians, or avatar.json
+    pose_points), its inputs/outputs checked and run once."""
     import onnxruntime as ort
 
     opts = ort.SessionOptions()
@@ -229,10 +266,11 @@ def load_avatar(path: str | os.PathLike) -> Avatar:
     skeleton = _check_skeleton(load_npz(sk_path), sk_path)
     _check_pose_joints(meta["pose_joints"], skeleton, meta_path)
     g_path = root / GAUSSIANS_NPZ
-    arrays = _check_gaussians(load_npz(g_path), g_path, meta["num_gaussians"], skeleton.num_joints, meta["anisotropic"])
+    M = meta.get("pose_points")
+    arrays = _check_gaussians(load_npz(g_path), g_path, meta["num_gaussians"], skeleton.num_joints, meta["anisotropic"], M)
     session = None
     if meta["pose_dependent"]:
-        session = _open_onnx(root / POSE_ONNX, root / POSE_ONNX, skeleton.num_joints, meta["num_gaussians"],
+        session = _open_onnx(root / POSE_ONNX, root / POSE_ONNX, skeleton.num_joints, M or meta["num_gaussians"],
                              3 if meta["anisotropic"] else 1)
     return Avatar(skeleton, arrays, meta, session, root)
 
@@ -257,6 +295,7 @@ def save_avatar(
     body_model: str,
     pose_joints: Sequence[str] = (),
     pose_dependent_onnx: bytes | None = None,  # serialized ONNX model, None = no pose-dependent terms
+    pose_points: int | None = None,  # M, the graph's output rows, with gaussians' pose_indices/pose_weights (version 2)
     source: Mapping[str, Any] | None = None,
     posed: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,  # name -> (pose [J,3], trans [3]): posed_<name>.ply
     overwrite: bool = False,
@@ -264,6 +303,7 @@ def save_avatar(
 ) -> Avatar:
     """Validate and write an avatar folder at ``path``; returns it loaded back (``load_avatar``).
 
+    The folder is version 2 with ``pose_points``, else version 1.
     Everything is written into a temporary sibling folder renamed onto ``path`` at the end: an error
     leaves nothing at ``path``. An existing non-empty folder is replaced only with ``overwrite=True`` and only
     when it is an avatar folder holding nothing else (``AVATAR_FOLDER``); ``path`` may not be, hold or lie
@@ -284,7 +324,7 @@ def save_avatar(
     pose_joints = [str(j) for j in pose_joints]
     meta: dict[str, Any] = {
         "format": AVATAR_FORMAT,
-        "version": AVATAR_VERSION,
+        "version": 1 if pose_points is None else AVATAR_VERSION,
         "body_model": body_model,
         "units": "m",
         "num_gaussians": N,
@@ -292,6 +332,7 @@ def save_avatar(
         "pose_dependent": pose_dependent_onnx is not None,
         "scale_clamp": list(SCALE_CLAMP),
         "pose_joints": pose_joints,
+        **({} if pose_points is None else {"pose_points": pose_points}),
         "trioman_version": __version__,
         "source": plain_json(dict(source or {}), where, "source"),
         "files": {},
@@ -303,13 +344,14 @@ def save_avatar(
         meta["files"][f"posed_{name}.ply"] = {"sha256": "0" * 64, "bytes": 0}
     _check_meta(meta, where)
     _check_pose_joints(pose_joints, skeleton, where)
-    arrays = _check_gaussians(gaussians, where, N, skeleton.num_joints, anisotropic)
+    arrays = _check_gaussians(gaussians, where, N, skeleton.num_joints, anisotropic, pose_points)
     unknown = sorted(set(gaussians) - set(arrays))
     if unknown:
         raise format_error(where, "gaussians", f"unknown array(s) {unknown}")
     session = None
     if pose_dependent_onnx is not None:
-        session = _open_onnx(bytes(pose_dependent_onnx), f"{where}: {POSE_ONNX}", skeleton.num_joints, N, 3 if anisotropic else 1)
+        session = _open_onnx(bytes(pose_dependent_onnx), f"{where}: {POSE_ONNX}", skeleton.num_joints, pose_points or N,
+                             3 if anisotropic else 1)
     avatar = Avatar(skeleton, arrays, meta, session)
 
     with atomic_folder(target, overwrite, AVATAR_FOLDER, inputs) as tmp:

@@ -160,7 +160,7 @@ CASES = [
     ("truncated and resigned npz", lambda r: ((r / "gaussians.npz").write_bytes((r / "gaussians.npz").read_bytes()[:300]),
                                               resign(r, "gaussians.npz")), r"gaussians.npz: not a valid .npz"),
     ("format", lambda r: edit_json(r, format="trioman-subject"), r"avatar.json: format: expected 'trioman-avatar'"),
-    ("version", lambda r: edit_json(r, version=2), r"avatar.json: version: unknown version 2"),
+    ("version", lambda r: edit_json(r, version=3), r"avatar.json: version: unknown version 3"),
     ("units", lambda r: edit_json(r, units="cm"), r"avatar.json: units"),
     ("no body model", lambda r: edit_json(r, body_model=None), r"avatar.json: body_model: missing field"),
     ("clamp", lambda r: edit_json(r, scale_clamp=[-10, 2]), r"avatar.json: scale_clamp"),

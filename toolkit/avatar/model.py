@@ -2,7 +2,9 @@
 
 One Gaussian per canonical body-mesh vertex (optionally subdivided or subsampled). A triplane is
 sampled at the canonical positions and MLPs predict a position offset, a scale (isotropic by
-default) and a colour; pose-dependent MLPs add offset/scale/colour deltas from the body pose.
+default) and a colour; pose-dependent MLPs add offset/scale/colour deltas from the body pose, evaluated at
+the Gaussians or at the vertices of a coarser subdivision level and carried to the Gaussians as the
+subdivision carries positions (``pose_subdivisions``).
 Opacity is 1 and rotation the identity unless ``anisotropic``. Gaussians follow the body by LBS with
 the body's skinning weights. Two sets come out of each forward pass, as in ExAvatar: "plain"
 (pose-independent) and "refined" (with the pose-dependent deltas).
@@ -22,7 +24,7 @@ from torch.autograd.function import once_differentiable
 
 from trioman.runtime.render.timing import stage
 from trioman.runtime.skeleton import SkinnedMesh
-from trioman.toolkit.avatar.mesh_ops import avatar_points, knn
+from trioman.toolkit.avatar.mesh_ops import avatar_points, knn, level_interpolation
 from trioman.toolkit.avatar.triplane import Triplane
 from trioman.toolkit.body.skinning import apply_transforms, skinning_transforms
 from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matrix_to_rot6d, quat_to_matrix
@@ -41,6 +43,10 @@ class AvatarConfig:
     hidden: int = 128
     anisotropic: bool = False
     pose_dependent: bool = True
+    # Where the pose-dependent MLPs run: None, at every Gaussian; L, at the vertices of the mesh after L of the
+    # `subdivisions` midpoint steps (the triplane sampled there), their deltas carried to the Gaussians by the
+    # linear map that makes the Gaussians' canonical points from those vertices.
+    pose_subdivisions: int | None = None
     knn: int = 6  # neighbours for the Laplacian regularisers and the initial scale
     scale_init: float = 0.75  # initial Gaussian scale, in units of the mean neighbour distance
     point_colors: bool = False  # a free colour logit per Gaussian on top of the triplane MLP's (detail below a cell)
@@ -50,6 +56,10 @@ class AvatarConfig:
         for name in ("triplane_channels", "triplane_res", "hidden", "knn"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
+        level = self.pose_subdivisions
+        if level is not None and (isinstance(level, bool) or not isinstance(level, int) or not 0 <= level <= self.subdivisions):
+            raise ValueError(f"pose_subdivisions: must be None or an integer in [0, subdivisions = {self.subdivisions}], "
+                             f"got {level!r}")
 
 
 class Gaussians(NamedTuple):
@@ -131,6 +141,11 @@ class GaussianAvatar(nn.Module):
         self.register_buffer("base_log_scale", torch.from_numpy(base).float()[:, None])
         cond = [j for j, n in enumerate(sk.joint_names) if not n.startswith(_NOT_CONDITIONING)]
         self.register_buffer("pose_joints", torch.tensor(cond, dtype=torch.long))
+        if self.coarse_pose:  # derived from the mesh and the config: not in the state dict
+            coarse, idx, w = level_interpolation(mesh, cfg.pose_subdivisions, cfg.subdivisions, cfg.keep, cfg.seed)
+            self.register_buffer("coarse_points", torch.from_numpy(coarse).float(), persistent=False)
+            self.register_buffer("pose_indices", torch.from_numpy(idx), persistent=False)
+            self.register_buffer("pose_weights", torch.from_numpy(w), persistent=False)
 
         # Same seed, same initial weights, without touching the caller's global RNG.
         with torch.random.fork_rng(devices=[]):
@@ -152,6 +167,25 @@ class GaussianAvatar(nn.Module):
     def num_gaussians(self) -> int:
         return self.canonical.shape[0]
 
+    @property
+    def coarse_pose(self) -> bool:
+        """Whether the pose-dependent MLPs run at a coarser level than the Gaussians (``pose_subdivisions``)."""
+        return self.cfg.pose_dependent and self.cfg.pose_subdivisions is not None
+
+    @property
+    def pose_points(self) -> torch.Tensor:
+        """[M, 3] the canonical points where the pose-dependent MLPs run (the Gaussians' own, M = N, or the coarse level's)."""
+        return self.coarse_points if self.coarse_pose else self.canonical
+
+    def carry_pose_deltas(self, deltas: torch.Tensor) -> torch.Tensor:
+        """deltas [M, C] at ``pose_points`` -> [N, C] at the Gaussians: row n is ``sum_p pose_weights[n, p]
+        deltas[pose_indices[n, p]]`` (one sparse product). Identity without ``coarse_pose``."""
+        if not self.coarse_pose:
+            return deltas
+        carry = self._sparse("pose", (self.pose_indices, self.pose_weights),
+                             lambda: (self.pose_indices, self.pose_weights, self.coarse_points.shape[0]))
+        return _SparseProduct.apply(deltas, *carry)
+
     def pose_features(self, pose: torch.Tensor) -> torch.Tensor:
         """[J, 3] axis-angle -> [6 * J_cond], zero at the rest pose."""
         R = axis_angle_to_matrix(pose[self.pose_joints])
@@ -170,10 +204,26 @@ class GaussianAvatar(nn.Module):
         MLPs' point parts): one matrix product for all of them, so the backward pass builds one gradient of
         the features instead of summing one per MLP."""
         layers = [self.geo_net[0], self.rgb_net[0]]
-        if self.cfg.pose_dependent:
-            layers += [self.geo_offset_net.feat_in, self.rgb_offset_net.feat_in]
-        out = F.linear(feats, torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers]))
+        if self.cfg.pose_dependent and not self.coarse_pose:
+            layers += self._pose_first_layers()
+        return self._linears(feats, layers)
+
+    def _pose_first_layers(self) -> list[nn.Linear]:
+        return [self.geo_offset_net.feat_in, self.rgb_offset_net.feat_in]
+
+    @staticmethod
+    def _linears(x: torch.Tensor, layers: list[nn.Linear]) -> list[torch.Tensor]:
+        """x [N, F] through ``layers`` (each F -> H_i) as one matrix product -> [N, H_i] each."""
+        out = F.linear(x, torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers]))
         return list(out.split([m.out_features for m in layers], dim=1))
+
+    def pose_deltas(self, pose_feat: torch.Tensor, point_layers: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """pose_feat [6 J_cond] -> [M, 3 + S + 3] the pose MLPs' deltas (offset, log scale, colour logits) at
+        ``pose_points``. point_layers: their first layers' point parts [M, H] x 2 when already computed."""
+        if point_layers is None:
+            point_layers = self._linears(self.triplane(self.pose_points), self._pose_first_layers())
+        dgeo = self.geo_offset_net.from_feat_in(point_layers[0], pose_feat)
+        return torch.cat([dgeo, self.rgb_offset_net.from_feat_in(point_layers[1], pose_feat)], dim=1)
 
     def _sparse(self, name: str, sources: tuple[torch.Tensor, ...],
                 rows: Callable[[], tuple[torch.Tensor, torch.Tensor, int]]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -203,10 +253,8 @@ class GaussianAvatar(nn.Module):
             offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
             rgb_logit = self._with_point_rgb(self.rgb_net[1:](z[1]))
             if self.cfg.pose_dependent:
-                pf = self.pose_features(pose)
-                dgeo = self.geo_offset_net.from_feat_in(z[2], pf)
-                d_offset, d_log_scale = dgeo[:, :3], dgeo[:, 3 : 3 + s]
-                d_rgb = self.rgb_offset_net.from_feat_in(z[3], pf)
+                deltas = self.pose_deltas(self.pose_features(pose), None if self.coarse_pose else z[2:])
+                d_offset, d_log_scale, d_rgb = self.carry_pose_deltas(deltas).split([3, s, 3], dim=1)
             else:
                 d_offset = torch.zeros_like(offset)
                 d_log_scale = torch.zeros_like(log_scale)
