@@ -23,13 +23,14 @@ _F32 = np.float32
 
 
 class Projected(NamedTuple):
-    """Float64 screen-space values of the M Gaussians that reach the image, in input order."""
+    """Float64 screen-space values of the M Gaussians that reach the image, in input order; per-Gaussian
+    vectors are rows over the Gaussians (each row contiguous)."""
 
     ids: np.ndarray  # [M] int64 indices into the N inputs
-    means2d: np.ndarray  # [M, 2] pixels
-    chol: np.ndarray  # [M, 3] (a, b, c): sigma = 0.5 ((a dx + b dy)^2 + (c dy)^2)
+    means2d: np.ndarray  # [2, M] pixels (x, y)
+    chol: np.ndarray  # [3, M] (a, b, c): sigma = 0.5 ((a dx + b dy)^2 + (c dy)^2)
     depths: np.ndarray  # [M] camera z of the centre
-    radii: np.ndarray  # [M, 2] whole numbers: the box |dx| <= r_x, |dy| <= r_y
+    radii: np.ndarray  # [2, M] whole numbers: the box |dx| <= r_x, |dy| <= r_y
 
 
 # --------------------------------------------------------------------------------------------
@@ -108,9 +109,9 @@ def check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, hei
 # projection
 
 
-def _rows(x: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """x[ids] in float64."""
-    return np.take(x, ids, axis=0).astype(np.float64)
+def _take(x: np.ndarray, ids: np.ndarray | None) -> np.ndarray:
+    """x[ids] along the first axis (None: all of x), float64."""
+    return np.asarray(x if ids is None else np.take(x, ids, axis=0), dtype=np.float64)
 
 
 EXTENT_RULES = ("opacity", "3sigma")  # see project()
@@ -123,20 +124,6 @@ def _extent(opacities: np.ndarray, rule: str = "opacity") -> np.ndarray:
         return np.full(len(opacities), 3.0)
     with np.errstate(divide="ignore"):
         return np.minimum(np.sqrt(np.maximum(2.0 * np.log(opacities * 255.0), 0.0)), MAX_EXTENT)
-
-
-def _bound_radii(smax: np.ndarray, z: np.ndarray, jx: np.ndarray, jy: np.ndarray, fx: float, fy: float,
-                 rv_norm: float, extent: np.ndarray) -> np.ndarray:
-    """Upper bounds of the radii [M, 2] from the largest scale alone.
-
-    Row 0 of N = J R_view R S is (fx / z) (e_x - (x'/z) e_z)^T R_view R S, whose norm is at most
-    (fx / z) sqrt(1 + (x'/z)^2) |R_view|_2 max(s) (R orthonormal); row 1 alike. The margin covers
-    rounding, so a Gaussian whose bounded box is off screen is off screen.
-    """
-    g = rv_norm * smax / z
-    var_x = (fx * g) ** 2 * (1.0 + jx * jx) + EPS2D
-    var_y = (fy * g) ** 2 * (1.0 + jy * jy) + EPS2D
-    return np.stack([np.ceil(extent * np.sqrt(var_x)), np.ceil(extent * np.sqrt(var_y))], -1) * (1 + 1e-9) + 1.0
 
 
 def _prefilter(means, scales, opacities, Rv, tv, Kd, width: int, height: int, near: float, far: float) -> np.ndarray:
@@ -192,64 +179,91 @@ def project(
     faint tails of opaque Gaussians (alpha up to o exp(-4.5) = 0.011 o at the box's edge)."""
     if extent not in EXTENT_RULES:
         raise ValueError(f"extent: expected one of {EXTENT_RULES}, got {extent!r}")
-    f64 = np.float64
-    vm = np.asarray(viewmat, dtype=f64)
-    Kd = np.asarray(K, dtype=f64)
+    vm = np.asarray(viewmat, dtype=np.float64)
+    Kd = np.asarray(K, dtype=np.float64)
     Rv, tv = vm[:3, :3], vm[:3, 3]
-    fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
     # 0. a float32 pre-filter, generous enough never to drop a Gaussian the exact float64 tests keep,
     # so Gaussians the view does not need cost a few float32 passes
     ids = _prefilter(means, scales, opacities, Rv, tv, Kd, width, height, near_plane, far_plane)
+    sub = None if len(ids) == len(means) else ids  # None: every Gaussian, nothing gathered
     # 1. centre depth and opacity (the opacity cull compares float32 values, like gsplat)
-    z_all = _rows(means, ids) @ Rv[2] + tv[2]
-    o32 = np.take(np.asarray(opacities, dtype=_F32), ids)
-    ids = ids[(z_all >= near_plane) & (z_all <= far_plane) & (o32 >= _F32(ALPHA_THRESHOLD))]
-    mc = _rows(means, ids) @ Rv.T + tv
-    tx, ty, tz = mc.T
+    mc = Rv @ _take(means, sub).T + tv[:, None]  # [3, M] camera coordinates
+    o32 = np.asarray(opacities if sub is None else np.take(opacities, sub), dtype=_F32)
+    kept = (mc[2] >= near_plane) & (mc[2] <= far_plane) & (o32 >= _F32(ALPHA_THRESHOLD))
+    if not kept.all():
+        sel = np.flatnonzero(kept)
+        ids, mc = ids[sel], mc[:, sel]
+        sub = ids
+    # 2. covariances (factored, :func:`_conic_terms`), the Cholesky conic and the radius box
+    p00, p11, s01, cross2, jx, jy = _conic_terms(mc, quats, scales, sub, Rv, Kd, width, height)
+    tz = mc[2]
+    u = (Kd[0, 0] * mc[0] + Kd[0, 1] * mc[1] + Kd[0, 2] * tz) / tz  # gsplat: K[:2] @ m / z
+    v = (Kd[1, 0] * mc[0] + Kd[1, 1] * mc[1] + Kd[1, 2] * tz) / tz
+    s00, s11 = p00 + EPS2D, p11 + EPS2D
+    det = EPS2D * EPS2D + EPS2D * (p00 + p11) + cross2
+    sd11 = np.sqrt(s11)
+    chol = np.stack([np.sqrt(s11 / det), -s01 / (np.sqrt(det) * sd11), 1.0 / sd11])
+    ext = _extent(_take(opacities, sub), extent)
+    radii = np.stack([np.ceil(ext * np.sqrt(s00)), np.ceil(ext * sd11)])
+    ok = ((det > 0) & ((radii[0] > 0) | (radii[1] > 0))
+          & (u + radii[0] > 0) & (u - radii[0] < width) & (v + radii[1] > 0) & (v - radii[1] < height))
+    means2d = np.stack([u, v])
+    if ok.all():
+        return Projected(ids, means2d, chol, tz, radii)
+    sel = np.flatnonzero(ok)
+    return Projected(ids[sel], means2d[:, sel], chol[:, sel], tz[sel], radii[:, sel])
+
+
+def _conic_terms(mc: np.ndarray, quats: np.ndarray, scales: np.ndarray, sub: np.ndarray | None, Rv: np.ndarray,
+                 Kd: np.ndarray, width: int, height: int) -> tuple[np.ndarray, ...]:
+    """The 2D covariance N N^T of the Gaussians at camera coordinates mc [3, M] (rows ``sub`` of the
+    inputs, None: all) in factored form. -> p00 = |n0|^2, p11 = |n1|^2, s01 = n0 . n1, cross2 = |n0 x n1|^2,
+    and the clamped x'/z, y'/z of the Jacobian, each [M] float64.
+
+    Rows of N = J M: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]], M = R_view R S. An isotropic
+    Gaussian (s_0 = s_1 = s_2 = s) has M M^T = s^2 R_view R_view^T whatever R, so its terms are
+    quadratic forms in (1, x'/z, y'/z) with the Gram matrices of R_view's rows and of their cross
+    products (sums of squares for an orthonormal R_view: nothing cancels); its quaternion is never read.
+    The others get M from their quaternions."""
+    fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
+    tx, ty, tz = mc
     tan_fovx, tan_fovy = 0.5 * width / fx, 0.5 * height / fy
     jx = np.clip(tx / tz, -(cx / fx + 0.3 * tan_fovx), (width - cx) / fx + 0.3 * tan_fovx)
     jy = np.clip(ty / tz, -(cy / fy + 0.3 * tan_fovy), (height - cy) / fy + 0.3 * tan_fovy)
-    mean2d = (mc[:, :2] @ Kd[:2, :2].T + Kd[:2, 2] * tz[:, None]) / tz[:, None]  # gsplat: K[:2] @ m / z
-    extent = _extent(_rows(opacities, ids), extent)
-
-    def on_screen(m2, r):
-        return ((m2[:, 0] + r[:, 0] > 0) & (m2[:, 0] - r[:, 0] < width)
-                & (m2[:, 1] + r[:, 1] > 0) & (m2[:, 1] - r[:, 1] < height))
-
-    # 2. conservative screen bound from the largest scale
-    smax = _rows(scales, ids).max(1)
-    kept = on_screen(mean2d, _bound_radii(smax, tz, jx, jy, fx, fy, np.linalg.norm(Rv, 2), extent))
-    ids, tz, jx, jy, mean2d, extent = _where(kept, ids, tz, jx, jy, mean2d, extent)
-    # 3. covariances of the survivors; rows of N = J M: J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]],
-    # M = R_view R S. Kept as rows over the Gaussians (Mr[r] [3, M] = row r of every M), so every
-    # product runs along M. Isotropic Gaussians (s_0 = s_1 = s_2 = s) have Sigma = s^2 I whatever R:
-    # M = s R_view, exactly the same N N^T, so their quaternions are never converted.
-    sc = _rows(scales, ids)
-    iso = (sc[:, 0] == sc[:, 1]) & (sc[:, 1] == sc[:, 2])
-    aniso = np.flatnonzero(~iso)
-    Mr = Rv[:, :, None] * sc[:, 0]  # [3, 3, M]: every Gaussian's isotropic value
+    sc = _take(scales, sub).T  # [3, M]
+    G = Rv @ Rv.T
+    C = np.stack([np.cross(Rv[0], Rv[1]), np.cross(Rv[0], Rv[2]), np.cross(Rv[1], Rv[2])])
+    H = C @ C.T  # n0 x n1 = f0 f1 (C[0] - y' C[1] + x' C[2]) for an isotropic Gaussian
+    f0 = (fx / tz) * sc[0]
+    f1 = (fy / tz) * sc[0]
+    jxx, jyy, jxy = jx * jx, jy * jy, jx * jy
+    p00 = f0 * f0 * (G[0, 0] - 2 * G[0, 2] * jx + G[2, 2] * jxx)
+    p11 = f1 * f1 * (G[1, 1] - 2 * G[1, 2] * jy + G[2, 2] * jyy)
+    f01 = f0 * f1
+    s01 = f01 * (G[0, 1] - G[0, 2] * jy - G[1, 2] * jx + G[2, 2] * jxy)
+    cross2 = f01 * f01 * (H[0, 0] + H[1, 1] * jyy + H[2, 2] * jxx - 2 * H[0, 1] * jy + 2 * H[0, 2] * jx
+                          - 2 * H[1, 2] * jxy)
+    aniso = np.flatnonzero((sc[0] != sc[1]) | (sc[1] != sc[2]))
     if len(aniso):
-        R = quat_to_matrix(_rows(quats, ids[aniso]))  # M^T = R^T R_view^T, its rows scaled by s
-        Mt = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * sc[aniso, :, None]
-        Mr[:, :, aniso] = Mt.transpose(2, 1, 0)
-    n0 = (fx / tz) * (Mr[0] - jx * Mr[2])  # [3, M]
-    n1 = (fy / tz) * (Mr[1] - jy * Mr[2])
+        q = _take(quats, aniso if sub is None else sub[aniso])
+        terms = _aniso_terms(quat_to_matrix(q), sc[:, aniso], Rv, fx / tz[aniso], fy / tz[aniso], jx[aniso], jy[aniso])
+        for arr, t in zip((p00, p11, s01, cross2), terms):
+            arr[aniso] = t
+    return p00, p11, s01, cross2, jx, jy
+
+
+def _aniso_terms(R: np.ndarray, sc: np.ndarray, Rv: np.ndarray, gx: np.ndarray, gy: np.ndarray, jx: np.ndarray,
+                 jy: np.ndarray) -> tuple[np.ndarray, ...]:
+    """p00, p11, s01, cross2 [A] (see :func:`_conic_terms`) of Gaussians with rotations R [A, 3, 3] and
+    scales sc [3, A]; gx = fx / z, gy = fy / z. M is kept as rows over the Gaussians (Mr[r] [3, A] = row r
+    of every M), so every product runs along A."""
+    Mt = (R.transpose(0, 2, 1).reshape(-1, 3) @ Rv.T).reshape(-1, 3, 3) * sc.T[:, :, None]  # M^T = R^T R_view^T
+    Mr = Mt.transpose(2, 1, 0)  # [3, 3, A]
+    n0 = gx * (Mr[0] - jx * Mr[2])  # [3, A]
+    n1 = gy * (Mr[1] - jy * Mr[2])
     p00 = n0[0] * n0[0] + n0[1] * n0[1] + n0[2] * n0[2]
     p11 = n1[0] * n1[0] + n1[1] * n1[1] + n1[2] * n1[2]
-    s00, s11, s01 = p00 + EPS2D, p11 + EPS2D, n0[0] * n1[0] + n0[1] * n1[1] + n0[2] * n1[2]
+    s01 = n0[0] * n1[0] + n0[1] * n1[1] + n0[2] * n1[2]
     cross2 = (np.square(n0[1] * n1[2] - n0[2] * n1[1]) + np.square(n0[2] * n1[0] - n0[0] * n1[2])
               + np.square(n0[0] * n1[1] - n0[1] * n1[0]))  # |n0 x n1|^2
-    det = EPS2D * EPS2D + EPS2D * (p00 + p11) + cross2
-    chol = np.stack([np.sqrt(s11 / det), -s01 / np.sqrt(det * s11), 1.0 / np.sqrt(s11)], -1)
-    radii = np.stack([np.ceil(extent * np.sqrt(s00)), np.ceil(extent * np.sqrt(s11))], -1)
-    ok = (det > 0) & ((radii[:, 0] > 0) | (radii[:, 1] > 0)) & on_screen(mean2d, radii)
-    return Projected(*_where(ok, ids, mean2d, chol, tz, radii))
-
-
-def _where(keep: np.ndarray, *arrays: np.ndarray) -> list[np.ndarray]:
-    """The rows of ``arrays`` where ``keep`` [M] is True, or the arrays themselves when it is True everywhere
-    (no copies when nothing is culled)."""
-    if keep.all():
-        return list(arrays)
-    sel = np.flatnonzero(keep)
-    return [a[sel] for a in arrays]
+    return p00, p11, s01, cross2

@@ -30,7 +30,6 @@ _THR_A32 = _F32(ALPHA_THRESHOLD)
 _THR_T32 = _F32(TRANSMITTANCE_THRESHOLD)
 _MAX_A32 = _F32(MAX_ALPHA)
 _LOG_ZERO = -1e30  # log opacity of the padding Gaussian
-_PAIR_SLICE = 1 << 16  # pairs per slice of the pair table's float64 arithmetic
 
 
 class RenderOutput(NamedTuple):
@@ -39,44 +38,43 @@ class RenderOutput(NamedTuple):
     depth: np.ndarray  # [H, W] float32, sum of w_i z_i (not normalised)
 
 
-def _pair_table(p, opacities, colors, bins, s: int) -> np.ndarray:
-    """float32 [10, P + 1], one column per (tile, Gaussian) pair of :func:`~.tiles.bin_gaussians`:
-    u0, a, b, v0, c (the Cholesky form scaled by sqrt(1/2), anchored at the centre of the pair's tile, see
-    :func:`_block_alpha`), log o, rgb, z. Row P is the padding pair, transparent everywhere.
+def _gauss_table(p, opacities: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per projected Gaussian, plus a padding Gaussian at index M (transparent everywhere):
+    float64 [5, M + 1] (mean x, mean y, a, b, c: the Cholesky form scaled by sqrt(1/2), see
+    :func:`_block_alpha`) and float32 [5, M + 1] (log o, rgb, z)."""
+    m = len(p.ids)
+    g64 = np.zeros((5, m + 1))
+    g64[:2, :m] = p.means2d
+    np.multiply(p.chol, np.sqrt(0.5), out=g64[2:, :m])
+    g32 = np.zeros((5, m + 1), dtype=_F32)
+    o = np.take(opacities, p.ids)
+    if not np.all(o == 1):  # log 1 = 0: the zeros stand
+        g32[0, :m] = np.log(o.astype(np.float64))
+    g32[0, m] = _LOG_ZERO
+    g32[1:4, :m] = np.take(colors, p.ids, axis=0).T
+    g32[4, :m] = p.depths
+    return g64, g32
+
+
+def _block_table(gidx: np.ndarray, centres: np.ndarray, g64: np.ndarray, g32: np.ndarray) -> np.ndarray:
+    """The pairs [kb, ta] of a block (gidx: their Gaussians, index M = padding; centres [2, ta]: their
+    tiles' centres) -> float32 [10, kb ta]: u0, a, b, v0, c, log o, rgb, z per pair.
 
     The anchoring is float64, rounded to float32 once: (u0, v0) = (a dx + b dy, c dy) with
-    (dx, dy) = tile centre - mean2d. Built column by column from 1D gathers (a 2D row gather or
-    a strided block store costs several times more in numpy)."""
-    g = bins.pair_gauss
-    n_pairs = len(g)
-    tab = np.empty((10, n_pairs + 1), dtype=_F32)
-    abc = p.chol * np.sqrt(0.5)
-    ty, tx = np.divmod(np.arange(len(bins.tile_count)), bins.tiles_x)
-    cx, cy = tx * s + s / 2, ty * s + s / 2  # tile centres
-    tile = bins.pair_tile
-    for j0 in range(0, n_pairs, _PAIR_SLICE):  # float64 temporaries of at most _PAIR_SLICE pairs
-        j1 = min(j0 + _PAIR_SLICE, n_pairs)
-        gs, ts = g[j0:j1], tile[j0:j1]
-        dy = np.take(cy, ts) - np.take(p.means2d[:, 1], gs)  # tile centre - mean2d, float64
-        dx = np.take(cx, ts) - np.take(p.means2d[:, 0], gs)
-        coef = np.take(abc[:, 2], gs)  # c
-        tab[4, j0:j1] = coef
-        coef *= dy
-        tab[3, j0:j1] = coef  # v0 = c dy
-        np.take(abc[:, 0], gs, out=coef, mode="clip")  # a
-        tab[1, j0:j1] = coef
-        dx *= coef
-        np.take(abc[:, 1], gs, out=coef, mode="clip")  # b
-        tab[2, j0:j1] = coef
-        coef *= dy
-        dx += coef
-        tab[0, j0:j1] = dx  # u0 = a dx + b dy
-    per_gauss = [np.log(opacities[p.ids].astype(np.float64)), *(colors[p.ids, k] for k in range(3)), p.depths]
-    for k, col in enumerate(per_gauss):
-        np.take(np.asarray(col, dtype=_F32), g, out=tab[5 + k, :n_pairs], mode="clip")
-    tab[:, n_pairs] = 0.0
-    tab[5, n_pairs] = _LOG_ZERO
-    return tab
+    (dx, dy) = tile centre - mean2d."""
+    kb, ta = gidx.shape
+    gidx = gidx.reshape(-1)
+    X = np.empty((10, kb * ta), dtype=_F32)
+    mx, my, a, b, c = np.take(g64, gidx, axis=1)
+    X[1], X[2], X[4] = a, b, c
+    dx = np.subtract(centres[0], mx.reshape(kb, ta), out=mx.reshape(kb, ta)).reshape(-1)
+    dy = np.subtract(centres[1], my.reshape(kb, ta), out=my.reshape(kb, ta)).reshape(-1)
+    np.multiply(c, dy, out=X[3])  # v0 = c dy
+    dx *= a
+    dy *= b
+    np.add(dx, dy, out=X[0])  # u0 = a dx + b dy
+    np.take(g32, gidx, axis=1, out=X[5:], mode="clip")
+    return X
 
 
 def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -89,7 +87,7 @@ def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _block_alpha(X: np.ndarray, bases: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """X [n, 10] (the columns of :func:`_pair_table` of n pairs, transposed) -> alpha [n, s^2] =
+    """X [n, 10] (the rows of :func:`_block_table` of n pairs, transposed) -> alpha [n, s^2] =
     min(0.99, o exp(-sigma)), 0 where skipped (< 1/255), float32.
 
     sigma = u^2 + v^2 in Cholesky form anchored at the tile centre, the pixels' u, v from
@@ -110,17 +108,21 @@ def _block_alpha(X: np.ndarray, bases: tuple[np.ndarray, np.ndarray]) -> np.ndar
     return G
 
 
-def _composite(tab, bins, s: int, chunk_elements: int):
-    """Front-to-back compositing of every tile (tab: :func:`_pair_table`) -> color [T, 4, s^2]
+def _composite(g64: np.ndarray, g32: np.ndarray, bins, s: int, chunk_elements: int):
+    """Front-to-back compositing of every tile (g64, g32: :func:`_gauss_table`) -> color [T, 4, s^2]
     (sum w c, sum w z) and T_final [T, s^2], float32. Every pixel of a tile is composited, those
     beyond the image's right and bottom edges too (they are cropped afterwards).
 
     Tiles go by decreasing list length in chunks; a chunk is walked along its lists in blocks
-    [kb, ta, s^2] (list position, tile, pixel). Per block the running product over the kb positions is
-    kb vectorised float32 multiplies from each pixel's T (0 once stopped), so P[i] is exactly the
-    sequential T before position i. The state of the tiles still in the walk (T, T at the stop, colour
-    sums) is kept compact; a tile whose list is done or whose pixels have all stopped is written out."""
+    [kb, ta, s^2] (list position, tile, pixel), each block's pair values built when it is reached
+    (:func:`_block_table`), so the pairs behind stopped tiles cost nothing. Per block the running
+    product over the kb positions is kb vectorised float32 multiplies from each pixel's T (0 once
+    stopped), so P[i] is exactly the sequential T before position i. The state of the tiles still in
+    the walk (T, T at the stop, colour sums) is kept compact; a tile whose list is done or whose pixels
+    have all stopped is written out."""
     tile_start, tile_count = bins.tile_start, bins.tile_count
+    pad = g64.shape[1] - 1
+    pair_gauss = np.append(bins.pair_gauss, pad)  # position P: the padding Gaussian
     n_pairs = len(bins.pair_gauss)
     n_tiles = len(tile_count)
     bases = _offset_bases(s)
@@ -141,9 +143,10 @@ def _composite(tab, bins, s: int, chunk_elements: int):
             ta = len(tiles)
             kb = int(min(max(KB_MIN, chunk_elements // (ta * s2)), counts[0] - k0))
             k = np.arange(k0, k0 + kb)[:, None]
-            pairs = np.where(k < counts, starts + k, n_pairs).reshape(-1)  # [kb ta], P = padding
-            X = np.take(tab, pairs, axis=1, mode="clip").T  # [kb ta, 10]
-            alpha = _block_alpha(X, bases).reshape(kb, ta * s2)
+            gidx = np.take(pair_gauss, np.where(k < counts, starts + k, n_pairs))  # [kb, ta]
+            ty, tx = np.divmod(tiles, bins.tiles_x)
+            X = _block_table(gidx, np.stack([tx * s + s / 2, ty * s + s / 2]), g64, g32)
+            alpha = _block_alpha(X.T, bases).reshape(kb, ta * s2)
             P = np.empty((kb + 1, ta * s2), dtype=_F32)  # T before each position, then after the last
             P[0] = T.reshape(-1)
             onem = np.subtract(_F32(1.0), alpha)
@@ -152,7 +155,7 @@ def _composite(tab, bins, s: int, chunk_elements: int):
             incl = P[1:] > _THR_T32  # not stopped (a prefix of the block; all False once stopped)
             w = np.multiply(alpha, P[:-1], out=alpha)
             w *= incl
-            acc += np.matmul(X[:, 6:10].reshape(kb, ta, 4).transpose(1, 2, 0), w.reshape(kb, ta, s2).transpose(1, 0, 2))
+            acc += np.matmul(X[6:10].reshape(4, kb, ta).transpose(2, 0, 1), w.reshape(kb, ta, s2).transpose(1, 0, 2))
             # pixels stopping in this block: T = P at their number of included positions
             go_on = incl[-1]
             stopping = np.flatnonzero((P[0] > 0.0) & ~go_on)
@@ -213,13 +216,13 @@ def rasterize(
         zeros = np.zeros((height, width), dtype=_F32)
         return RenderOutput(np.broadcast_to(bg, (height, width, 3)).copy(), zeros, zeros.copy())
     s = tile_size
-    ellipse = (p.chol, opacities[p.ids]) if extent == "opacity" else (None, None)
+    ellipse = (p.chol, np.take(opacities, p.ids)) if extent == "opacity" else (None, None)
     with stage("tile binning"):
         bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, *ellipse)
-    with stage("pair table"):
-        table = _pair_table(p, opacities, colors, bins, s)
+    with stage("Gaussian table"):
+        g64, g32 = _gauss_table(p, opacities, colors)
     with stage("compositing"):
-        color, T_final = _composite(table, bins, s, chunk_elements)
+        color, T_final = _composite(g64, g32, bins, s, chunk_elements)
     with stage("image"):
         return _image(color, T_final, bins, s, width, height, bg)
 

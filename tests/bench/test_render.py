@@ -21,7 +21,7 @@ def test_bench_render_writes_timings_stage_profile_and_report(tmp_path):
     assert [(r["scene"], r["size"]) for r in stages] == [(s, n) for s in ("default", "quick", "full") for n in (32, 64)]
     assert [r["gaussians"] for r in stages[::2]] == [13718, 54848, 219368]
     for row in stages:
-        assert {"projection", "tile binning", "pair table", "compositing", "image"} <= set(row["stages"])
+        assert {"projection", "tile binning", "Gaussian table", "compositing", "image"} <= set(row["stages"])
         assert abs(sum(row["stages"].values()) - row["total_ms"]) < 1e-6 and row["fps"] > 0
     md = (out / "render.md").read_text()
     assert "## The numpy renderer by stage" in md and "| full | 219368 | 64 |" in md
