@@ -36,9 +36,9 @@ def _distinct_rows(indices: np.ndarray, weights: np.ndarray) -> tuple[tuple[np.n
 
 def _carry(deltas: np.ndarray, indices: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """deltas [M, C] (float32) -> [N, C]: row n = sum_p weights[n, p] deltas[indices[n, p]], in the order of p."""
-    out = weights[:, 0, None] * deltas[indices[:, 0]]
+    out = weights[:, 0, None] * np.take(deltas, indices[:, 0], axis=0)  # take: a fast row gather
     for p in range(1, indices.shape[1]):
-        out += weights[:, p, None] * deltas[indices[:, p]]
+        out += weights[:, p, None] * np.take(deltas, indices[:, p], axis=0)
     return out
 
 
@@ -115,7 +115,7 @@ class Avatar:
             d_offset, d_log_scale, d_rgb = self.pose_deltas(pose.astype(np.float32))
             pos, log_s, logit = pos + d_offset, log_s + d_log_scale, logit + d_rgb
         A = self.skeleton.skinning_transforms(pose, trans)  # [J, 4, 4] float64
-        T = blend_transforms(A, *self._skin_rows)[self._skin_of]  # [N, 3, 4]: each distinct row blended once
+        T = np.take(blend_transforms(A, *self._skin_rows), self._skin_of, axis=0)  # [N, 3, 4]: each distinct row blended once
         means = apply_transforms(T, pos.astype(np.float64))
         N = self.num_gaussians
         if self.anisotropic:

@@ -73,6 +73,45 @@ def test_runtime_gaussians_match_the_torch_model(tmp_path, anisotropic, pose_dep
         assert np.abs(a - b).max() > 1e-3
 
 
+@pytest.mark.parametrize("level,subdivisions,anisotropic", [(0, 2, False), (1, 2, True), (0, 1, False)])
+def test_coarse_pose_avatar_matches_the_torch_model(tmp_path, level, subdivisions, anisotropic):
+    """pose_subdivisions: the graph gives the deltas at the coarse level's M vertices (format version 2) and
+    the runtime carries them to the Gaussians; the posed Gaussians are the torch model's within the tolerance."""
+    cfg = AvatarConfig(subdivisions=subdivisions, pose_subdivisions=level, anisotropic=anisotropic, keep=0.7, **SMALL)
+    model = trained_like(cfg, seed=2)
+    av, info = export_model(model, tmp_path / "a", body_model="test")
+    M, N = model.pose_points.shape[0], model.num_gaussians
+    meta = json.loads((tmp_path / "a" / "avatar.json").read_text())
+    assert meta["version"] == 2 and meta["pose_points"] == M < N and info["onnx_parity_max_abs"] <= ATOL
+    graph = onnx.load(str(tmp_path / "a" / "pose_dependent.onnx")).graph
+    assert [o.type.tensor_type.shape.dim[0].dim_value for o in graph.output] == [M] * 3
+    rng = np.random.default_rng(1)
+    for pose in test_poses():
+        pose, trans = pose.astype(np.float32), rng.normal(size=3).astype(np.float32)
+        with torch.no_grad():
+            out = model(torch.from_numpy(pose), torch.from_numpy(trans))
+        for got, want in zip(av.pose_deltas(pose)[::2], (out.delta_offset, out.delta_rgb)):
+            assert np.abs(got - want.numpy()).max() <= ATOL
+        got = av.gaussians(pose, trans)
+        for name in ("means", "scales", "colors"):
+            assert np.abs(getattr(got, name) - getattr(out.refined, name).numpy()).max() <= ATOL, name
+    # Without the pose-dependent terms the avatar is a version 1 folder.
+    plain, _ = export_model(model, tmp_path / "b", body_model="test", pose_dependent=False)
+    assert plain.meta["version"] == 1 and "pose_points" not in plain.meta and "pose_indices" not in plain.arrays
+
+
+def test_default_model_exports_a_version_1_avatar(tmp_path):
+    """The pose MLPs at the Gaussians (the default, and every run before pose_subdivisions): version 1, the graph's
+    rows are the Gaussians and the runtime adds them as they come."""
+    model = trained_like(AvatarConfig(subdivisions=1, **SMALL))
+    av, _ = export_model(model, tmp_path / "a", body_model="test")
+    meta = json.loads((tmp_path / "a" / "avatar.json").read_text())
+    assert meta["version"] == 1 and "pose_points" not in meta and "pose_indices" not in av.arrays
+    pose = test_poses()[5].astype(np.float32)
+    for got, want in zip(av.pose_deltas(pose), torch_pose_deltas(model, pose)):
+        assert got.shape == want.shape == (model.num_gaussians, got.shape[1]) and np.abs(got - want).max() <= ATOL
+
+
 def test_onnx_graph_matches_the_torch_mlps():
     model = trained_like(AvatarConfig(anisotropic=True, **SMALL), seed=3)
     proto = pose_dependent_onnx(model)

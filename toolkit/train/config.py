@@ -86,12 +86,13 @@ class TrainConfig:
 
 
 # quick: a CPU-sized strong baseline; no pose-dependent MLPs, whose offsets extrapolate to novel poses
-# (docs/findings.md, "Avatar"). full: ExAvatar's setting for real captures (pose-dependent, both sets supervised).
+# (docs/findings.md, "Avatar"). full: ExAvatar's setting for real captures (pose-dependent, both sets supervised),
+# the pose-dependent MLPs on the body mesh's own vertices, carried to the twice-subdivided Gaussians.
 PRESETS: dict[str, TrainConfig] = {
     "quick": TrainConfig(preset="quick", iterations=1000, avatar=AvatarConfig(
         subdivisions=1, point_colors=True, scale_init=1.0, pose_dependent=False, triplane_res=64, hidden=64)),
     "full": TrainConfig(preset="full", iterations=6000, supervise_plain=True, avatar=AvatarConfig(
-        subdivisions=2, point_colors=True, scale_init=1.0, triplane_res=128)),
+        subdivisions=2, point_colors=True, scale_init=1.0, triplane_res=128, pose_subdivisions=0)),
 }
 
 

@@ -7,7 +7,7 @@ torch = pytest.importorskip("torch")
 
 from tests.runtime.test_skeleton import random_mesh  # noqa: E402
 from trioman.runtime.skeleton import Skeleton, SkinnedMesh  # noqa: E402
-from trioman.toolkit.avatar.mesh_ops import avatar_points, subdivide  # noqa: E402
+from trioman.toolkit.avatar.mesh_ops import avatar_points, level_interpolation, subdivide  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig, GaussianAvatar  # noqa: E402
 
 SMALL = dict(triplane_channels=4, triplane_res=8, hidden=16, knn=3)
@@ -85,6 +85,107 @@ def test_subdivision_and_subsampling():
     np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-6)
     with pytest.raises(ValueError, match="keep"):
         avatar_points(mesh, keep=0.0)
+
+
+def _by_hand_carry(mesh: SkinnedMesh, level: int, subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """The level's vertices [M, 3] and the dense map [N, M] to the subdivided mesh's vertices, by hand: each
+    midpoint step appends, per edge (in ``subdivide``'s order), the mean of its two ends' rows."""
+    verts, faces = mesh.vertices, mesh.faces
+    for _ in range(level):
+        verts, faces, _ = subdivide(verts, faces)
+    rows = np.eye(len(verts))
+    coarse = verts
+    for _ in range(subdivisions - level):
+        sides = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        edges = np.unique(np.sort(sides, axis=1), axis=0)
+        rows = np.concatenate([rows, 0.5 * (rows[edges[:, 0]] + rows[edges[:, 1]])])
+        verts, faces, _ = subdivide(verts, faces)
+        np.testing.assert_allclose(rows @ coarse, verts, atol=1e-12)  # the map makes the subdivided points
+    return coarse, rows
+
+
+@pytest.mark.parametrize("level,subdivisions", [(0, 1), (0, 2), (1, 2), (2, 2)])
+def test_level_interpolation_makes_the_subdivided_points(level, subdivisions):
+    mesh = grid_mesh()
+    coarse, dense = _by_hand_carry(mesh, level, subdivisions)
+    for keep in (1.0, 0.4):
+        pts, idx, w = level_interpolation(mesh, level, subdivisions, keep, seed=2)
+        fine = avatar_points(mesh, subdivisions, keep, seed=2)[0]
+        np.testing.assert_array_equal(pts, coarse)
+        np.testing.assert_allclose((w[..., None] * pts[idx]).sum(1), fine, atol=1e-12)
+        assert np.all(w >= 0) and np.all(w.sum(1) == 1) and idx.shape[1] <= 2 ** (subdivisions - level)
+        if keep == 1.0:
+            got = np.zeros_like(dense)
+            np.add.at(got, (np.arange(len(idx))[:, None], idx), w)
+            np.testing.assert_array_equal(got, dense)  # exactly the subdivision's dyadic weights
+    with pytest.raises(ValueError, match=r"level: must lie in \[0, subdivisions = 1\], got 2"):
+        level_interpolation(mesh, 2, 1)
+
+
+def _perturbed(model: GaussianAvatar, seed: int = 0) -> GaussianAvatar:
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():  # non-zero output layers, so the deltas are not zeros
+        for prm in model.parameters():
+            prm.add_(0.1 * torch.randn(prm.shape, generator=gen))
+    return model
+
+
+@pytest.mark.parametrize("level,subdivisions,anisotropic", [(0, 1, False), (0, 2, False), (1, 2, True)])
+def test_coarse_pose_mlps_match_the_brute_force_reference(level, subdivisions, anisotropic):
+    """pose_subdivisions: the pose MLPs at the coarse level's vertices (triplane sampled there), their deltas
+    averaged up by hand, subdivision by subdivision: the same deltas and the same gradients."""
+    mesh = grid_mesh()
+    cfg = AvatarConfig(subdivisions=subdivisions, pose_subdivisions=level, anisotropic=anisotropic, **SMALL)
+    model = _perturbed(GaussianAvatar(mesh, cfg))
+    coarse, dense = _by_hand_carry(mesh, level, subdivisions)
+    assert model.pose_points.shape == (len(coarse), 3) and model.num_gaussians == len(dense)
+    pose = torch.full((4, 3), 0.3)
+    results = []
+    for fast in (True, False):
+        model.zero_grad()
+        if fast:
+            out = model(pose, torch.zeros(3))
+            d_off, d_rgb = out.delta_offset, out.delta_rgb
+            d_ls = torch.log(out.refined.scales[:, 0]) - torch.log(out.plain.scales[:, 0])
+        else:
+            feats = model.triplane(torch.from_numpy(coarse).float())
+            pf = model.pose_features(pose)
+            P = torch.from_numpy(dense).float()
+            dgeo, d_rgb = P @ model.geo_offset_net(feats, pf), P @ model.rgb_offset_net(feats, pf)
+            d_off, d_ls = dgeo[:, :3], dgeo[:, 3]
+        (d_off.square().sum() + d_ls.sum() + d_rgb.sin().sum()).backward()
+        grads = {n: p.grad.clone() for n, p in model.named_parameters() if "offset_net" in n or "triplane" in n}
+        results.append(((d_off, d_ls, d_rgb), grads))
+    (got, grads_f), (want, grads_r) = results
+    assert float(want[0].detach().abs().max()) > 1e-2 and float(want[2].detach().abs().max()) > 1e-2
+    for a, b, name in zip(got, want, ("d_offset", "d_log_scale", "d_rgb")):
+        torch.testing.assert_close(a.detach(), b.detach(), atol=1e-5, rtol=0, msg=name)
+    for name in grads_r:
+        scale = max(1.0, float(grads_r[name].abs().max()))
+        torch.testing.assert_close(grads_f[name], grads_r[name], atol=1e-5 * scale, rtol=0, msg=name)
+
+
+def test_pose_subdivisions_option():
+    """Checked; not in the state dict (derived from the mesh); old configs (without the field) keep the
+    pose MLPs at the Gaussians; the full preset runs them on the body mesh's own vertices."""
+    import dataclasses
+
+    from trioman.toolkit.train.config import TrainConfig, preset
+
+    for bad in (2, -1, True, 0.0):
+        with pytest.raises(ValueError, match=rf"pose_subdivisions: must be None or an integer in \[0, subdivisions = 1\], got {bad!r}"):
+            AvatarConfig(subdivisions=1, pose_subdivisions=bad)
+    mesh = grid_mesh()
+    at_gaussians = GaussianAvatar(mesh, AvatarConfig(subdivisions=1, **SMALL))
+    coarse = GaussianAvatar(mesh, AvatarConfig(subdivisions=1, pose_subdivisions=0, **SMALL))
+    assert not at_gaussians.coarse_pose and coarse.coarse_pose
+    assert at_gaussians.pose_points is at_gaussians.canonical and coarse.pose_points.shape == (mesh.num_vertices, 3)
+    assert at_gaussians.state_dict().keys() == coarse.state_dict().keys()
+    old = preset("full").to_dict()
+    del old["avatar"]["pose_subdivisions"]
+    assert TrainConfig.from_dict(old).avatar.pose_subdivisions is None
+    assert preset("full").avatar.pose_subdivisions == 0 and preset("quick").avatar.pose_subdivisions is None
+    assert dataclasses.replace(preset("full").avatar, pose_subdivisions=None) == TrainConfig.from_dict(old).avatar
 
 
 def test_laplacian_of_constant_is_zero():
