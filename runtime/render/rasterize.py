@@ -38,43 +38,52 @@ class RenderOutput(NamedTuple):
     depth: np.ndarray  # [H, W] float32, sum of w_i z_i (not normalised)
 
 
-def _gauss_table(p, opacities: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per projected Gaussian, plus a padding Gaussian at index M (transparent everywhere):
-    float64 [5, M + 1] (mean x, mean y, a, b, c: the Cholesky form scaled by sqrt(1/2), see
-    :func:`_block_alpha`) and float32 [5, M + 1] (log o, rgb, z)."""
+class GaussTable(NamedTuple):
+    """Per projected Gaussian, plus a padding Gaussian at row M (transparent everywhere), rows of at most
+    32 bytes (numpy gathers them fastest): the Cholesky form (a, b, c) is scaled by sqrt(1/2), see
+    :func:`_block_alpha`."""
+
+    anchor: np.ndarray  # [M + 1, 4] float64 mean x, mean y, a, b
+    conic: np.ndarray  # [M + 1, 8] float32 (slot u0), a, b, (slot v0), c, log o, 0, 0
+    color: np.ndarray  # [M + 1, 4] float32 rgb, z
+
+
+def _gauss_table(p, opacities: np.ndarray, colors: np.ndarray) -> GaussTable:
+    """The :class:`GaussTable` of the projected Gaussians ``p``."""
     m = len(p.ids)
-    g64 = np.zeros((5, m + 1))
-    g64[:2, :m] = p.means2d
-    np.multiply(p.chol, np.sqrt(0.5), out=g64[2:, :m])
-    g32 = np.zeros((5, m + 1), dtype=_F32)
+    abc = p.chol * np.sqrt(0.5)
+    anchor = np.zeros((m + 1, 4))
+    anchor[:m] = np.concatenate([p.means2d, abc[:2]]).T
+    conic = np.zeros((m + 1, 8), dtype=_F32)
+    conic[:m, 1:3] = abc[:2].T
+    conic[:m, 4] = abc[2]
     o = np.take(opacities, p.ids)
     if not np.all(o == 1):  # log 1 = 0: the zeros stand
-        g32[0, :m] = np.log(o.astype(np.float64))
-    g32[0, m] = _LOG_ZERO
-    g32[1:4, :m] = np.take(colors, p.ids, axis=0).T
-    g32[4, :m] = p.depths
-    return g64, g32
+        conic[:m, 5] = np.log(o.astype(np.float64))
+    conic[m, 5] = _LOG_ZERO
+    color = np.zeros((m + 1, 4), dtype=_F32)
+    color[:m, :3] = np.take(colors, p.ids, axis=0)
+    color[:m, 3] = p.depths
+    return GaussTable(anchor, conic, color)
 
 
-def _block_table(gidx: np.ndarray, centres: np.ndarray, g64: np.ndarray, g32: np.ndarray) -> np.ndarray:
-    """The pairs [kb, ta] of a block (gidx: their Gaussians, index M = padding; centres [2, ta]: their
-    tiles' centres) -> float32 [10, kb ta]: u0, a, b, v0, c, log o, rgb, z per pair.
+def _block_table(gidx: np.ndarray, centres: np.ndarray, tab: GaussTable) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs [kb, ta] of a block (gidx: their Gaussians, row M = padding; centres [2, ta]: their
+    tiles' centres) -> X [kb ta, 8] (u0, a, b, v0, c, log o, 0, 0) and C [kb ta, 4] (rgb, z), float32.
 
     The anchoring is float64, rounded to float32 once: (u0, v0) = (a dx + b dy, c dy) with
     (dx, dy) = tile centre - mean2d."""
     kb, ta = gidx.shape
     gidx = gidx.reshape(-1)
-    X = np.empty((10, kb * ta), dtype=_F32)
-    mx, my, a, b, c = np.take(g64, gidx, axis=1)
-    X[1], X[2], X[4] = a, b, c
-    dx = np.subtract(centres[0], mx.reshape(kb, ta), out=mx.reshape(kb, ta)).reshape(-1)
-    dy = np.subtract(centres[1], my.reshape(kb, ta), out=my.reshape(kb, ta)).reshape(-1)
-    np.multiply(c, dy, out=X[3])  # v0 = c dy
-    dx *= a
-    dy *= b
-    np.add(dx, dy, out=X[0])  # u0 = a dx + b dy
-    np.take(g32, gidx, axis=1, out=X[5:], mode="clip")
-    return X
+    A = np.take(tab.anchor, gidx, axis=0)
+    X = np.take(tab.conic, gidx, axis=0)
+    dx = np.subtract(centres[0], A[:, 0].reshape(kb, ta)).reshape(-1)
+    dy = np.subtract(centres[1], A[:, 1].reshape(kb, ta)).reshape(-1)
+    np.multiply(X[:, 4], dy, out=X[:, 3], casting="same_kind")  # v0 = c dy
+    dx *= A[:, 2]
+    dy *= A[:, 3]
+    np.add(dx, dy, out=X[:, 0], casting="same_kind")  # u0 = a dx + b dy
+    return X, np.take(tab.color, gidx, axis=0)
 
 
 def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +96,7 @@ def _offset_bases(s: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _block_alpha(X: np.ndarray, bases: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """X [n, 10] (the rows of :func:`_block_table` of n pairs, transposed) -> alpha [n, s^2] =
+    """X [n, 8] (:func:`_block_table` of n pairs) -> alpha [n, s^2] =
     min(0.99, o exp(-sigma)), 0 where skipped (< 1/255), float32.
 
     sigma = u^2 + v^2 in Cholesky form anchored at the tile centre, the pixels' u, v from
@@ -102,14 +111,14 @@ def _block_alpha(X: np.ndarray, bases: tuple[np.ndarray, np.ndarray]) -> np.ndar
     else:  # every opacity is 1: log o - sigma = -sigma exactly, without the row broadcast
         np.negative(G, out=G)
     np.exp(G, out=G)
-    keep = G >= _THR_A32  # skip alpha < 1/255 (decided before the cap, as the cap is above it)
-    np.minimum(G, _MAX_A32, out=G)
-    G *= keep
+    keep = np.greater_equal(G, _THR_A32).view(np.uint8)  # skip alpha < 1/255 (decided before the cap,
+    np.minimum(G, _MAX_A32, out=G)  # as the cap is above it), by a multiply: no branch per entry
+    np.multiply(G, keep, out=G, casting="unsafe")
     return G
 
 
-def _composite(g64: np.ndarray, g32: np.ndarray, bins, s: int, chunk_elements: int):
-    """Front-to-back compositing of every tile (g64, g32: :func:`_gauss_table`) -> color [T, 4, s^2]
+def _composite(tab: GaussTable, bins, s: int, chunk_elements: int):
+    """Front-to-back compositing of every tile (tab: :func:`_gauss_table`) -> color [T, 4, s^2]
     (sum w c, sum w z) and T_final [T, s^2], float32. Every pixel of a tile is composited, those
     beyond the image's right and bottom edges too (they are cropped afterwards).
 
@@ -121,8 +130,7 @@ def _composite(g64: np.ndarray, g32: np.ndarray, bins, s: int, chunk_elements: i
     the walk (T, T at the stop, colour sums) is kept compact; a tile whose list is done or whose pixels
     have all stopped is written out."""
     tile_start, tile_count = bins.tile_start, bins.tile_count
-    pad = g64.shape[1] - 1
-    pair_gauss = np.append(bins.pair_gauss, pad)  # position P: the padding Gaussian
+    pair_gauss = np.append(bins.pair_gauss, len(tab.anchor) - 1)  # position P: the padding Gaussian
     n_pairs = len(bins.pair_gauss)
     n_tiles = len(tile_count)
     bases = _offset_bases(s)
@@ -145,8 +153,8 @@ def _composite(g64: np.ndarray, g32: np.ndarray, bins, s: int, chunk_elements: i
             k = np.arange(k0, k0 + kb)[:, None]
             gidx = np.take(pair_gauss, np.where(k < counts, starts + k, n_pairs))  # [kb, ta]
             ty, tx = np.divmod(tiles, bins.tiles_x)
-            X = _block_table(gidx, np.stack([tx * s + s / 2, ty * s + s / 2]), g64, g32)
-            alpha = _block_alpha(X.T, bases).reshape(kb, ta * s2)
+            X, C = _block_table(gidx, np.stack([tx * s + s / 2, ty * s + s / 2]), tab)
+            alpha = _block_alpha(X, bases).reshape(kb, ta * s2)
             P = np.empty((kb + 1, ta * s2), dtype=_F32)  # T before each position, then after the last
             P[0] = T.reshape(-1)
             onem = np.subtract(_F32(1.0), alpha)
@@ -155,7 +163,7 @@ def _composite(g64: np.ndarray, g32: np.ndarray, bins, s: int, chunk_elements: i
             incl = P[1:] > _THR_T32  # not stopped (a prefix of the block; all False once stopped)
             w = np.multiply(alpha, P[:-1], out=alpha)
             w *= incl
-            acc += np.matmul(X[6:10].reshape(4, kb, ta).transpose(2, 0, 1), w.reshape(kb, ta, s2).transpose(1, 0, 2))
+            acc += np.matmul(C.reshape(kb, ta, 4).transpose(1, 2, 0), w.reshape(kb, ta, s2).transpose(1, 0, 2))
             # pixels stopping in this block: T = P at their number of included positions
             go_on = incl[-1]
             stopping = np.flatnonzero((P[0] > 0.0) & ~go_on)
@@ -220,9 +228,9 @@ def rasterize(
     with stage("tile binning"):
         bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s, *ellipse)
     with stage("Gaussian table"):
-        g64, g32 = _gauss_table(p, opacities, colors)
+        tab = _gauss_table(p, opacities, colors)
     with stage("compositing"):
-        color, T_final = _composite(g64, g32, bins, s, chunk_elements)
+        color, T_final = _composite(tab, bins, s, chunk_elements)
     with stage("image"):
         return _image(color, T_final, bins, s, width, height, bg)
 

@@ -36,10 +36,10 @@ def _depth_order(depths: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return np.take(idx, order)
 
 
-def _ellipse_columns(mx, my, a, b, c, e2, rows, y0, y1) -> tuple[np.ndarray, np.ndarray]:
+def _ellipse_columns(mx, my, a, b, c, e2, rg, y0, y1) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre x-range [x_lo, x_hi] of the ellipse (a dx + b dy)^2 + (c dy)^2 <= e2 over the band
-    of pixel-centre rows y in [y0, y1]. mx, my, a, b, c, e2: [K] float64 per Gaussian; rows [R]: the
-    Gaussian of each band; y0, y1 [R]. -> x_lo, x_hi [R] (x_lo > x_hi, or NaN, where the band misses the ellipse).
+    of pixel-centre rows y in [y0, y1]. mx, my, a, b, c, e2: [K] float64 per Gaussian; rg [R] intp: the
+    Gaussian of each band; y0, y1 [R]. -> x_lo, x_hi [R] (NaN where the band misses the ellipse).
 
     x(dy) = mx - (b/a) dy -+ sqrt(e2 - (c dy)^2) / a; its left edge is convex in dy and the right edge
     concave, so each extreme over the band is at the clamp of the unconstrained extreme's dy,
@@ -47,20 +47,24 @@ def _ellipse_columns(mx, my, a, b, c, e2, rows, y0, y1) -> tuple[np.ndarray, np.
     sq = np.sqrt(e2)
     ry = sq / c  # the ellipse's half-height
     per = [mx, my, ry, sq * b / (c * np.sqrt(b * b + c * c)), b / a, e2 / (a * a), np.square(c / a)]
-    mx, my, ry, dy_ext, ba, e2a, ca2 = (np.take(x, rows) for x in per)
-    lo = np.maximum(y0 - my, -ry)
-    hi = np.minimum(y1 - my, ry)
-    hi[lo > hi] = np.nan  # the band misses the ellipse
+    mx, my, ry, dy_ext, ba, e2a, ca2 = (np.take(x, rg) for x in per)
+    lo = np.subtract(y0, my, out=y0)
+    np.maximum(lo, -ry, out=lo)
+    hi = np.subtract(y1, my, out=y1)
+    np.minimum(hi, ry, out=hi)
+    np.copyto(hi, np.nan, where=lo > hi)  # the band misses the ellipse
     out = []
     for sign in (-1.0, 1.0):  # left edge, then right edge
-        dy = np.minimum(np.maximum(dy_ext * -sign, lo), hi)
+        dy = np.multiply(dy_ext, -sign)
+        np.clip(dy, lo, hi, out=dy)
         half = np.square(dy)
         half *= ca2
         np.subtract(e2a, half, out=half)
         np.sqrt(np.maximum(half, 0.0, out=half), out=half)
         dy *= ba
         np.subtract(mx, dy, out=dy)
-        dy += sign * half
+        half *= sign
+        dy += half
         out.append(dy)
     return out[0], out[1]
 
@@ -76,21 +80,22 @@ def bin_gaussians(means2d: np.ndarray, radii: np.ndarray, depths: np.ndarray, wi
     hi = np.minimum(np.floor(means2d + radii - 0.5), [[width - 1], [height - 1]])
     # front to back: emit pairs in depth order, then a stable sort by tile keeps that order
     order = _depth_order(depths, (lo[0] <= hi[0]) & (lo[1] <= hi[1]))
-    t_lo = np.take(lo, order, axis=1).astype(np.int32) // tile  # [2, K] tile ranges, in depth order
-    t_hi = np.take(hi, order, axis=1).astype(np.int32) // tile
-    # (Gaussian, tile row) rows, in depth order then by tile row; rg: position in order
+    t_lo = np.take(lo, order, axis=1).astype(np.intp) // tile  # [2, K] tile ranges, in depth order
+    t_hi = np.take(hi, order, axis=1).astype(np.intp) // tile
+    # (Gaussian, tile row) rows, in depth order then by tile row
+    # rg: each row's position in order (intp: numpy gathers convert other index types first)
     nr = t_hi[1] - t_lo[1] + 1
-    rg = np.repeat(np.arange(len(order), dtype=np.int32), nr)
-    tr = np.arange(len(rg), dtype=np.int32) - np.repeat(np.cumsum(nr, dtype=np.int32) - nr, nr)
-    tr += np.take(t_lo[1], rg)
+    rg = np.repeat(np.arange(len(order)), nr)
+    tr = np.arange(len(rg)) - np.take(np.cumsum(nr) - nr - t_lo[1], rg)
     c0, c1 = np.take(t_lo[0], rg), np.take(t_hi[0], rg)
     if chol is not None:
         c0, c1 = _ellipse_tiles(means2d, chol, opacities, order, rg, tr, c0, c1, width, height, tile)
     nc = c1 - c0 + 1
     # (Gaussian, tile) pairs
-    g = np.repeat(np.take(order, rg), nc)
-    base = tr * tx_n + c0 - (np.cumsum(nc, dtype=np.int32) - nc)  # tile id of pair k: base + k
-    tile_id = np.repeat(base, nc) + np.arange(len(g), dtype=np.int32)
+    pr = np.repeat(np.arange(len(rg)), nc)  # each pair's row
+    g = np.take(order, np.take(rg, pr))
+    base = tr * tx_n + c0 - (np.cumsum(nc) - nc)  # tile id of pair k: base + k
+    tile_id = np.take(base, pr) + np.arange(len(g))
     perm = np.argsort(tile_id.astype(np.uint16) if n_tiles <= 1 << 16 else tile_id, kind="stable")
     tile_count = np.bincount(tile_id, minlength=n_tiles)
     pair_tile = np.repeat(np.arange(n_tiles, dtype=np.int32), tile_count)  # sorted by tile: the ids in order
@@ -106,15 +111,15 @@ def _ellipse_tiles(means2d, chol, opacities, order, rg, tr, c0, c1, width: int, 
     with np.errstate(divide="ignore"):
         e2 = 2.0 * np.log(255.0 * np.take(np.asarray(opacities, dtype=np.float64), order))
     e2 = np.maximum(e2, 0.0) * (1.0 + ELLIPSE_MARGIN) + ELLIPSE_MARGIN
-    y0 = np.maximum(tr * tile, 0) + 0.5
-    y1 = np.minimum(tr * tile + tile, height) - 0.5
+    y0 = tr * float(tile)
+    y1 = np.minimum(y0 + tile, height) - 0.5
+    y0 += 0.5
     x_lo, x_hi = _ellipse_columns(*per, e2, rg, y0, y1)
     with np.errstate(invalid="ignore"):
         j_lo = np.ceil(x_lo - 0.5, out=x_lo)
         j_hi = np.floor(x_hi - 0.5, out=x_hi)
         miss = ~((j_lo <= j_hi) & (j_hi >= 0) & (j_lo <= width - 1))  # also where NaN
-        c0 = np.maximum(c0, np.clip(j_lo, 0, width - 1).astype(np.int32) // tile)
-        c1 = np.minimum(c1, np.clip(j_hi, 0, width - 1).astype(np.int32) // tile)
-    c1 = np.maximum(c1, c0 - 1)
-    c1[miss] = c0[miss] - 1
+        c0 = np.maximum(c0, np.clip(j_lo, 0, width - 1, out=j_lo).astype(np.intp) // tile)
+        c1 = np.minimum(c1, np.clip(j_hi, 0, width - 1, out=j_hi).astype(np.intp) // tile)
+    np.copyto(c1, c0 - 1, where=miss)
     return c0, c1
