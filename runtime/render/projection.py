@@ -141,12 +141,14 @@ def _prefilter(means, scales, opacities, Rv, tv, Kd, width: int, height: int, ne
     scale += _F32(1e-6)
     keep = (z + scale >= near) & (z - scale <= far) & (np.asarray(opacities, dtype=_F32) >= _F32(ALPHA_THRESHOLD))
     ids = np.flatnonzero(keep)
-    x, y, z, scale = np.take(x, ids), np.take(y, ids), np.take(z, ids), np.take(scale, ids)
+    sc = np.asarray(scales, dtype=_F32)
+    if len(ids) < n:  # nothing gathered when nothing is culled
+        x, y, z, scale = (np.take(v, ids) for v in (x, y, z, scale))
+        sc = np.take(sc, ids, axis=0)
+    smax = np.maximum(np.maximum(sc[:, 0], sc[:, 1]), sc[:, 2])
     z0 = np.maximum(z - scale, _F32(near) * _F32(0.5))  # the smallest depth the centre may have
     z1 = z0 + 2 * scale  # the largest
     fx, fy, cx, cy = (_F32(v) for v in (Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]))
-    sc = np.asarray(scales, dtype=_F32)
-    smax = np.maximum(np.maximum(np.take(sc[:, 0], ids), np.take(sc[:, 1], ids)), np.take(sc[:, 2], ids))
     lim = _F32(max(width / fx, height / fy) * 2 + 1)  # >= the Jacobian's clamp |x'/z| of every axis
     g = smax * _F32(np.linalg.norm(Rv, 2) * 1.001 * max(fx, fy)) / z0
     r = _F32(MAX_EXTENT * 1.001) * np.sqrt(g * g * (1 + lim * lim) + _F32(EPS2D)) + _F32(2)
