@@ -48,7 +48,8 @@ def avatar_points(mesh: SkinnedMesh, subdivisions: int = 0, keep: float = 1.0, s
     return verts[chosen], mesh.skin_indices[source[chosen]], mesh.skin_weights[source[chosen]]
 
 
-def level_interpolation(mesh: SkinnedMesh, level: int, subdivisions: int = 0, keep: float = 1.0, seed: int = 0):
+def level_interpolation(mesh: SkinnedMesh, level: int, subdivisions: int = 0, keep: float = 1.0,
+                        seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The avatar's points (``avatar_points`` with the same arguments) as averages of the vertices of the mesh
     after ``level`` <= ``subdivisions`` midpoint steps, exactly as the subdivision makes them (a midpoint is the
     mean of its edge's two ends, level by level).
@@ -96,6 +97,7 @@ def _padded(rows: sparse.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_levels(subdivisions: int, keep: float) -> None:
+    """ValueError naming ``keep`` outside (0, 1] or ``subdivisions`` < 0."""
     if not 0.0 < keep <= 1.0:
         raise ValueError(f"keep: must lie in (0, 1], got {keep}")
     if subdivisions < 0:

@@ -209,6 +209,7 @@ class GaussianAvatar(nn.Module):
         return self._linears(feats, layers)
 
     def _pose_first_layers(self) -> list[nn.Linear]:
+        """The pose MLPs' first layers on the point features (geo, rgb)."""
         return [self.geo_offset_net.feat_in, self.rgb_offset_net.feat_in]
 
     @staticmethod
