@@ -51,7 +51,8 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
                           ("GRk_warp+geo", "refined"), ("GRE", "examined"),
                           ("GRd_tex+geo", "refined"), ("ceiling", "truth")):
         a = res[variant]["0"]["augment"]
-        assert a["mode"] == mode and a["kept"] > 0, variant
+        assert a["mode"] == mode and a["entries"] > 0 and a["kept"] <= a["entries"], variant  # entries made when drawn
+        assert (a["kept"] > 0) == (a["pseudo_steps"] > 0), variant
     assert all(np.isfinite(x["psnr"]) for runs in res.values() for x in runs.values())
     assert set(r["condition_check"]["tex+geo"]) == {"coarse", "true", "without_reference", "zero_normal"}
     assert set(r["condition_check"]["warp+geo"]) == {"coarse", "aligned", "true", "without_reference", "zero_normal"}

@@ -1,12 +1,14 @@
 """Online augmentation (paper 3.2.3-3.2.7): pseudo-GT frames made during the avatar's own optimisation.
 
 After a warm-up of ``start`` x iterations, every ``refresh`` steps the pool of pseudo-GT frames is
-rebuilt: each of its ``pool`` entries is a random training frame's Generator candidates rendered by the
-current avatar (no grad) and turned into pseudo-GT by the shared augmentation step
+rebuilt: each of its ``pool`` entries is a random training frame's Generator candidates, rendered by the
+avatar as it is at the rebuild (no grad) and turned into pseudo-GT by the shared augmentation step
 (``trioman.runtime.pseudo_gt.make_pseudo_frames``, the one ``trioman augment`` runs), which gives the
 frame its image, mask and per-pixel loss weights. Each step after the warm-up trains on a pool frame
-with probability ``share``, with loss weight ``weight``. The pool and this module's random state live in
-the checkpoints, so a resumed run equals an uninterrupted one.
+with probability ``share``, with loss weight ``weight``. An entry is made when a step first draws it,
+from a copy of the avatar taken at the rebuild, so entries no step draws cost nothing and the frames are
+those an eager rebuild would make. The pool, that copy and this module's random state live in the
+checkpoints, so a resumed run equals an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -23,14 +25,13 @@ import torch
 
 from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.formats import Subject
-from trioman.runtime.generator import GeneratorConfig, sample
+from trioman.runtime.generator import CameraDelta, Candidate, GeneratorConfig, sample
 from trioman.runtime.pseudo_gt import KINDS, MASKS, STAGES, PseudoConfig, Source, make_pseudo_frames, needs_aligner
 from trioman.toolkit.avatar.model import GaussianAvatar
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.data import FrameSet
 
 MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_gt.py)
-_POOL_KEYS = ("images", "masks", "pixel_weights", "poses", "trans", "K", "viewmat")
 
 
 @dataclass(frozen=True)
@@ -151,9 +152,10 @@ class Augmenter:
             from trioman.toolkit.synth.subject import TruthRenderer
 
             self.truth = TruthRenderer(subject)
-        self.pool: dict[str, torch.Tensor] | None = None
-        self.stats: dict[str, Any] = {"rebuilds": 0, "pseudo_steps": 0, "candidates": 0, "kept": 0, "dropped": 0,
-                                      "score_sum": 0.0, "scored": 0, "coverage_sum": 0.0, "aligned": 0,
+        self.entries: list[dict[str, Any]] | None = None  # the pool: made frames and pending draws (_pending)
+        self.snapshot: GaussianAvatar | None = None  # the avatar at the last rebuild: renders the pending entries
+        self.stats: dict[str, Any] = {"rebuilds": 0, "entries": 0, "pseudo_steps": 0, "candidates": 0, "kept": 0,
+                                      "dropped": 0, "score_sum": 0.0, "scored": 0, "coverage_sum": 0.0, "aligned": 0,
                                       "seconds": dict.fromkeys(STAGES, 0.0)}
 
     # ---- schedule
@@ -167,42 +169,57 @@ class Augmenter:
         if step < self.start:
             return False
         take = bool(self.rng.random() < self.cfg.share)
-        return take and self.pool is not None and len(self.pool["images"]) > 0
+        return take and bool(self.entries)
 
-    def draw(self) -> dict[str, Any]:
-        """A pool frame: images/masks/pixel_weights/poses/trans/K/viewmat of one entry and its loss weight."""
-        j = int(self.rng.integers(len(self.pool["images"])))
-        self.stats["pseudo_steps"] += 1
-        return {**{k: v[j] for k, v in self.pool.items()}, "weight": self.cfg.weight}
+    def draw(self) -> dict[str, Any] | None:
+        """A pool frame: images/masks/pixel_weights/poses/trans/K/viewmat of one entry and its loss weight, made
+        now if no step drew it before. An entry the Examiner drops leaves the pool and another is drawn (so the
+        draw is uniform over the kept entries); None when every entry was dropped."""
+        while self.entries:
+            j = int(self.rng.integers(len(self.entries)))
+            if "images" not in self.entries[j]:
+                made = self._make(self.entries[j]["source"], self.entries[j]["candidates"])
+                if made is None:
+                    del self.entries[j]
+                    continue
+                self.entries[j] = made
+            self.stats["pseudo_steps"] += 1
+            return {**self.entries[j], "weight": self.cfg.weight}
+        return None
 
     # ---- building
 
     @torch.no_grad()
     def rebuild(self, model: GaussianAvatar) -> None:
-        entries = []
+        """A new pool: every entry's source frame and Generator candidates are drawn now, in the order an eager
+        rebuild draws them, and rendered later by a copy of ``model`` as it is now."""
+        if self.snapshot is None:
+            self.snapshot = GaussianAvatar(self.subject.body, model.cfg).requires_grad_(False)
+        self.snapshot.load_state_dict(model.state_dict())
+        t = time.perf_counter()
+        self.entries = []
+        f = self.frames
         for _ in range(self.cfg.pool):
-            entry = self._make(model, int(self.rng.integers(len(self.frames))))
-            if entry is not None:
-                entries.append(entry)
-        H, W = self.frames.height, self.frames.width
-        empty = {"images": (0, H, W, 3), "masks": (0, H, W), "pixel_weights": (0, H, W), "poses": (0, *self.frames.poses.shape[1:]),
-                 "trans": (0, 3), "K": (0, 3, 3), "viewmat": (0, 4, 4)}
-        self.pool = {k: torch.stack([e[k] for e in entries]) if entries else torch.zeros(empty[k]) for k in _POOL_KEYS}
+            i = int(self.rng.integers(len(f)))
+            cands = sample(self.subject.body.skeleton, f.poses[i].numpy(), f.trans[i].numpy(), f.viewmat[i].numpy(),
+                           self.rng, self.cfg.candidates, self.gen_cfg)
+            self.entries.append({"source": i, "candidates": cands})
+        self.stats["seconds"]["generate"] += time.perf_counter() - t
         self.stats["rebuilds"] += 1
+        self.stats["entries"] += self.cfg.pool
 
-    def _make(self, model: GaussianAvatar, i: int) -> dict[str, torch.Tensor] | None:
-        t, sec = time.perf_counter(), self.stats["seconds"]
+    @torch.no_grad()
+    def _make(self, i: int, cands: list[Candidate]) -> dict[str, torch.Tensor] | None:
+        """The pool frame of source frame ``i``'s candidates, rendered by the snapshot; None when dropped."""
+        sec = self.stats["seconds"]
         f, bg = self.frames, self.background
         W, H = f.width, f.height
         real_mask = f.mask(i).numpy()
         real = f.image(i).numpy() + (1.0 - real_mask)[..., None] * bg  # I^T over the subject's background
-        cands = sample(self.subject.body.skeleton, f.poses[i].numpy(), f.trans[i].numpy(), f.viewmat[i].numpy(),
-                       self.rng, self.cfg.candidates, self.gen_cfg)
-        sec["generate"] += time.perf_counter() - t
         source = Source(i, real.astype(np.float32), f.K[i].numpy(), bg)
         truth = None if self.truth is None else (lambda c, K: self.truth.at_draw(int(f.indices[i]), c, K))
-        made = make_pseudo_frames(cands, source, lambda c: render_candidate(model, c, f.K[i], W, H, bg), self.pseudo_cfg,
-                                  body=self.subject.body, aligner=self.aligner, refiner=self.refiner,
+        made = make_pseudo_frames(cands, source, lambda c: render_candidate(self.snapshot, c, f.K[i], W, H, bg),
+                                  self.pseudo_cfg, body=self.subject.body, aligner=self.aligner, refiner=self.refiner,
                                   examiner=self.examiner, truth=truth, seconds=sec)
         self.stats["candidates"] += len(cands)
         self.stats["coverage_sum"] += float(sum(made.coverage))
@@ -226,28 +243,57 @@ class Augmenter:
     # ---- checkpoints
 
     def state_dict(self) -> dict[str, Any]:
-        return {"rng": json.dumps(self.rng.bit_generator.state), "stats": json.dumps(self.stats),
-                "pool": None if self.pool is None else dict(self.pool)}
+        pending = self.entries is not None and any("images" not in e for e in self.entries)
+        entries = None if self.entries is None else [
+            e if "images" in e else {"source": e["source"], "candidates": _candidates_json(e["candidates"])}
+            for e in self.entries]
+        return {"rng": json.dumps(self.rng.bit_generator.state), "stats": json.dumps(self.stats), "entries": entries,
+                "snapshot": self.snapshot.state_dict() if pending else None}
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def load_state_dict(self, state: dict[str, Any], model: GaussianAvatar) -> None:
+        """``model``: the avatar being trained (its config builds the snapshot that renders pending entries)."""
         self.rng.bit_generator.state = json.loads(state["rng"])
         self.stats = json.loads(state["stats"])
-        self.pool = None if state["pool"] is None else dict(state["pool"])
-        if self.pool is not None and "pixel_weights" not in self.pool:  # a checkpoint from before per-pixel weights
-            self.pool["pixel_weights"] = torch.ones_like(self.pool["masks"])
+        if "entries" in state:
+            self.entries = None if state["entries"] is None else [
+                e if "images" in e else {"source": int(e["source"]), "candidates": _candidates_from_json(e["candidates"])}
+                for e in state["entries"]]
+        else:  # a checkpoint from before pending entries: every pool frame was made at its rebuild
+            pool = state["pool"]
+            self.entries = None if pool is None else [{k: v[j] for k, v in pool.items()} for j in range(len(pool["images"]))]
+        if state.get("snapshot") is not None:
+            self.snapshot = GaussianAvatar(self.subject.body, model.cfg).requires_grad_(False)
+            self.snapshot.load_state_dict(state["snapshot"])
+        for e in self.entries or []:
+            if "images" in e and "pixel_weights" not in e:  # a checkpoint from before per-pixel weights
+                e["pixel_weights"] = torch.ones_like(e["masks"])
         self.stats.setdefault("coverage_sum", 0.0)
         self.stats.setdefault("aligned", 0)
+        self.stats.setdefault("entries", self.stats["rebuilds"] * self.cfg.pool)
         for stage in STAGES:
             self.stats["seconds"].setdefault(stage, 0.0)
 
     def summary(self, steps: int) -> dict[str, Any]:
-        """Counts, mean kept score and seconds per stage (total and per training step)."""
+        """Counts (pool entries drawn at the rebuilds; candidates rendered, kept and dropped for the entries
+        steps drew), mean kept score and seconds per stage (total and per training step)."""
         s = self.stats
         return {"mode": self.cfg.mode, "config": dataclasses.asdict(self.cfg), "start_step": self.start,
-                **{k: s[k] for k in ("rebuilds", "pseudo_steps", "candidates", "kept", "dropped")},
+                **{k: s[k] for k in ("rebuilds", "entries", "pseudo_steps", "candidates", "kept", "dropped")},
                 "mean_kept_score": s["score_sum"] / s["scored"] if s["scored"] else None,
                 "mean_body_coverage": s["coverage_sum"] / s["aligned"] if s["aligned"] else None,
                 "seconds": s["seconds"], "ms_per_step": {k: 1e3 * v / max(steps, 1) for k, v in s["seconds"].items()}}
+
+
+def _candidates_json(cands: list[Candidate]) -> str:
+    """Candidates as JSON (floats round-trip exactly): a checkpoint holds data, never pickled objects."""
+    return json.dumps([{"pose": c.pose.tolist(), "trans": c.trans.tolist(), "viewmat": c.viewmat.tolist(),
+                        "delta_pose": c.delta_pose.tolist(), "camera": dataclasses.asdict(c.camera),
+                        "center": c.center.tolist()} for c in cands])
+
+
+def _candidates_from_json(text: str) -> list[Candidate]:
+    return [Candidate(np.array(d["pose"]), np.array(d["trans"]), np.array(d["viewmat"]), np.array(d["delta_pose"]),
+                      CameraDelta(**d["camera"]), np.array(d["center"])) for d in json.loads(text)]
 
 
 @torch.no_grad()

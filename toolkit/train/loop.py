@@ -160,7 +160,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         rng.bit_generator.state = json.loads(loop.resumed["numpy_rng"])
         torch_gen.set_state(loop.resumed["torch_rng"])
         if augmenter is not None:
-            augmenter.load_state_dict(loop.resumed["augment"])
+            augmenter.load_state_dict(loop.resumed["augment"], model)
     write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
     log = run / "train_log.csv"
     _trim_log(log, loop.step)
@@ -190,9 +190,8 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
                 group["lr"] = learning_rate(cfg, step) * group["lr_scale"]
             if augmenter is not None and augmenter.due(step):
                 augmenter.rebuild(model)
-            if augmenter is not None and augmenter.use_pseudo(step):
-                sample = augmenter.draw()
-            else:
+            sample = augmenter.draw() if augmenter is not None and augmenter.use_pseudo(step) else None
+            if sample is None:  # a real frame (also when the Examiner dropped every pool entry)
                 sample = frames.sample(int(rng.integers(len(frames))))
             loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step)
             done_here += 1

@@ -67,8 +67,9 @@ def test_each_mode_trains_on_pseudo_frames_and_lowers_the_loss(subject, models, 
     assert loss[-10:].mean() < 0.8 * loss[:10].mean(), (loss[:10].mean(), loss[-10:].mean())
     summary = json.loads((run / AUGMENT_JSON).read_text())
     assert summary["mode"] == mode and summary["start_step"] == 10 and summary["rebuilds"] == 3
-    assert summary["kept"] == 6 and 0 < summary["pseudo_steps"] < 30
-    assert summary["candidates"] == 6 * (2 if mode == "examined" else 1)
+    # Entries are made when first drawn: at most the 6 drawn at the rebuilds, at least one per pseudo step's entry.
+    assert summary["entries"] == 6 and 1 <= summary["kept"] <= min(6, summary["pseudo_steps"]) < 30
+    assert summary["candidates"] == summary["kept"] * (2 if mode == "examined" else 1) and summary["dropped"] == 0
     # What a mode does not need is never run.
     used = {k for k, v in summary["seconds"].items() if v > 0}
     assert used == {"coarse": {"generate", "render", "align"}, "aligned": {"generate", "render", "align"},
@@ -116,7 +117,7 @@ def test_examiner_threshold_drops_candidates_and_training_goes_on(subject, model
                       augment=augment_cfg("examined", models, threshold=1.0))  # nothing reaches a score of 1
     run = train(subject, tmp_path / "t", cfg, progress=False)
     summary = json.loads((run / AUGMENT_JSON).read_text())
-    assert summary["kept"] == 0 and summary["dropped"] == 2 and summary["pseudo_steps"] == 0
+    assert summary["kept"] == 0 and summary["dropped"] == 2 and summary["pseudo_steps"] == 0  # both tried, both dropped
     assert np.all(np.isfinite(losses(run)))
 
 
@@ -166,10 +167,41 @@ def test_detail_only_pseudo_frames_keep_the_coarse_colours(subject, models):
         if name != "coarse":
             aug.refiner = _ShiftingRefiner()
         aug.rebuild(model)
-        pools[name] = aug.pool["images"].numpy()
+        pools[name] = np.stack([aug.draw()["images"].numpy() for _ in range(3)])  # the same entries: one rng stream
     shift = {k: np.abs(pools[k].mean((1, 2)) - pools["coarse"].mean((1, 2))).max() for k in ("refined", "detail")}
     assert shift["detail"] < 0.2 * shift["refined"], shift  # a blur wider than the frame removes the mean change
     assert not np.allclose(pools["detail"], pools["coarse"])  # the detail stays
+
+
+def test_a_pool_frame_is_the_avatar_at_the_rebuild_and_only_drawn_entries_are_made(subject, models):
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.avatar.model import GaussianAvatar
+    from trioman.toolkit.train.augmentation import Augmenter
+    from trioman.toolkit.train.data import load_frames
+
+    subj = load_subject(subject)
+    frames = load_frames(subj, "train")
+    cfg = AugmentConfig(mode="aligned", pool=4, start=0.0)
+    model = GaussianAvatar(subj.body, TINY_AVATAR)
+    now, later = Augmenter(cfg, subj, frames, 10, seed=3), Augmenter(cfg, subj, frames, 10, seed=3)
+    now.rebuild(model)
+    later.rebuild(model)
+    first = now.draw()
+    with torch.no_grad():  # training goes on between the rebuild and the draw
+        for p in model.parameters():
+            p.add_(0.5)
+    drawn = later.draw()
+    for key in ("images", "masks", "pixel_weights", "poses", "viewmat"):
+        torch.testing.assert_close(drawn[key], first[key], rtol=0, atol=0)
+    assert later.stats["candidates"] == 1 and later.stats["entries"] == 4  # the other three are still pending
+    made_now = [e for e in later.entries if "images" in e]
+    assert len(made_now) == 1
+    restored = Augmenter(cfg, subj, frames, 10, seed=0)
+    restored.load_state_dict(later.state_dict(), model)  # pending entries and the rebuild's avatar come back
+    again = [restored.draw() for _ in range(6)]
+    expect = [later.draw() for _ in range(6)]
+    for a, b in zip(again, expect):
+        torch.testing.assert_close(a["images"], b["images"], rtol=0, atol=0)
 
 
 def test_bad_model_files_give_one_line_errors(models, tmp_path):
