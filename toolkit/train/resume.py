@@ -158,6 +158,12 @@ def check_resume(run: Path, record: dict[str, Any], subject: Subject, cfg: Train
     earlier = {saved.iterations, *(e.get("iterations_before") for e in extensions)}
     same_count = extend_iterations is not None or cfg.iterations in earlier
     given = dataclasses.replace(cfg, iterations=saved.iterations) if same_count else cfg
+    # Avatar fields come from the preset, not from flags: one the run's record lacks (added to the code later)
+    # is the run's own, its default, which reproduces the run's avatar.
+    later = [f.name for f in dataclasses.fields(saved.avatar) if f.name not in record["train"].get("avatar", {})]
+    if later:
+        given = dataclasses.replace(given, avatar=dataclasses.replace(
+            given.avatar, **{name: getattr(saved.avatar, name) for name in later}))
     diff = config_differences(saved, given)
     if diff:
         more = f" and {len(diff) - _SHOWN} more" if len(diff) > _SHOWN else ""

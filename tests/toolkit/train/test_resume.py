@@ -64,3 +64,19 @@ def test_the_suggested_command_is_the_runs_own(subject, tmp_path, capsys, monkey
     assert main(["train", str(subject), "--out", str(run), "--iterations", "1", "--seed", "2", "--resume", "--quiet"]) == 1
     err = capsys.readouterr().err
     assert f"`{resume_command(run, read_record(run))}`" in err and "--iterations 1 --resume`" in err
+
+
+def test_a_run_recorded_before_an_avatar_field_existed_resumes_with_its_preset(subject, tmp_path):
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.train.resume import check_resume, new_record
+
+    subj = load_subject(subject)
+    full = preset("full")
+    old = dataclasses.replace(full, avatar=dataclasses.replace(full.avatar, pose_subdivisions=None))
+    record = new_record(subj, old)
+    del record["train"]["avatar"]["pose_subdivisions"]  # config.json as the code before the field wrote it
+    cfg, _ = check_resume(tmp_path, record, subj, full, 0, None)
+    assert cfg.avatar.pose_subdivisions is None  # the run's avatar, not today's preset's
+    record["train"]["avatar"]["pose_subdivisions"] = None  # a recorded value is the run's choice: a change is refused
+    with pytest.raises(ValueError, match=r"avatar.pose_subdivisions: None -> 0"):
+        check_resume(tmp_path, record, subj, full, 0, None)
