@@ -36,7 +36,6 @@ variants per subject, and the same Generator draws as pseudo-GT through each mod
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -108,6 +107,55 @@ class AblationPlan:
         return int(round(self.iterations / (self.start + (1 - self.start) * (1 - self.share))))
 
 
+@dataclass(frozen=True)
+class AblationBenchConfig:
+    out: str | Path = "out/bench"  # the report folder: models, runs, subjects and figures go in it
+    corpus: str | Path = "out/corpus"  # the corpus folder, built when absent
+    size: int = 128  # image side of a corpus built here
+    subjects: int = 10  # training subjects of a corpus built here
+    heldout: int = 3  # held-out subjects of a corpus built here
+    baseline_frames: str = "all"  # the one corpus variant the Refiners and the Examiner train on
+    refiner_steps: int = 1000  # training steps of each Refiner
+    refiner_size: str = "compact"  # the Refiners' widths
+    examiner: str = "examiner_nano"  # the Examiner's config name
+    examiner_steps: int = 1000  # the Examiner's training steps
+    batch: int = 4  # the models' training batch
+    crop: int = 64  # the Refiners' training crop side
+    iterations: int = AblationPlan.iterations  # real-frame steps of every avatar run
+    seeds: int = AblationPlan.seeds  # seeds of the seeded rows
+    detail_sigma: float | None = AblationPlan.detail_sigma  # trains the GRd_tex+geo lever with this blur sigma (pixels)
+    coverage: float = AblationPlan.coverage  # share of a full turn the held-out subjects' training frames span
+    pose_noise: float = AblationPlan.pose_noise  # degrees of fitting noise on the held-out subjects' stored poses
+    augment_start: float = AblationPlan.start  # warm-up share of an augmented run
+    augment_pool: int = AblationPlan.pool  # pseudo-GT frames per pool rebuild
+    augment_refresh: int = AblationPlan.refresh  # steps between pool rebuilds
+    augment_mask: str = AblationPlan.mask  # the pseudo frames' mask
+    variants: tuple[str, ...] | None = None  # the rows trained (None: all); the others are reported when finished
+    ablation_subjects: tuple[str, ...] | None = None  # held-out subjects of the corpus (None: all of them)
+    training: bool = True  # False: report the finished runs, train nothing
+
+    def __post_init__(self) -> None:
+        from trioman.bench.common import check_choice, check_int, check_names, check_path
+
+        check_path(self, "out")
+        check_path(self, "corpus")
+        check_int(self, "size", 2)
+        check_int(self, "heldout", 1)
+        for name in ("subjects", "refiner_steps", "examiner_steps", "batch", "crop", "iterations", "seeds",
+                     "augment_pool", "augment_refresh"):
+            check_int(self, name)
+        if self.baseline_frames not in ("all", "subset"):
+            raise ValueError(f"baseline_frames: ablation trains on one corpus variant, 'all' or 'subset', "
+                             f"got {self.baseline_frames!r}")
+        check_choice(self, "refiner_size", ("compact", "default"))
+        check_choice(self, "augment_mask", ("carried", "alpha"))
+        for name in ("variants", "ablation_subjects"):
+            if getattr(self, name) is not None:
+                check_names(self, name)
+        if not isinstance(self.training, bool):
+            raise ValueError(f"training: must be a bool, got {self.training!r}")
+
+
 def _variant_runs(plan: AblationPlan) -> list[tuple[str, int]]:
     return [(name, seed) for name, _, _, seeded in plan.variants for seed in (range(plan.seeds) if seeded else (0,))]
 
@@ -165,18 +213,18 @@ def _model_run(out: Path, key: str) -> Path:
     return out / "models" / key.replace("+", "_")
 
 
-def _models(corpus: Path, out: Path, args: argparse.Namespace, keys: list[str]) -> tuple[dict[str, Path], dict]:
+def _models(corpus: Path, out: Path, config: AblationBenchConfig, keys: list[str]) -> tuple[dict[str, Path], dict]:
     """Train (or reuse, when finished) the models ``keys`` in OUT/models; the others already there are used too."""
     from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
 
-    fit = FitConfig(steps=args.refiner_steps, batch=args.batch, crop=args.crop, baseline_frames=args.baseline_frames)
+    fit = FitConfig(steps=config.refiner_steps, batch=config.batch, crop=config.crop, baseline_frames=config.baseline_frames)
     for key in keys:
         if key == "examiner":
-            fit_examiner(corpus, _model_run(out, key), args.examiner,
-                         FitConfig(steps=args.examiner_steps, batch=args.batch, lr=3e-4, crop=None,
-                                   baseline_frames=args.baseline_frames))
+            fit_examiner(corpus, _model_run(out, key), config.examiner,
+                         FitConfig(steps=config.examiner_steps, batch=config.batch, lr=3e-4, crop=None,
+                                   baseline_frames=config.baseline_frames))
         else:
-            fit_refiner(corpus, _model_run(out, key), key.removeprefix("refiner_"), fit, args.refiner_size)
+            fit_refiner(corpus, _model_run(out, key), key.removeprefix("refiner_"), fit, config.refiner_size)
     return _trained_models(out)
 
 
@@ -222,31 +270,29 @@ def condition_check(refiner_run: Path, heldout: list[Path], conditions: str = "t
     return found
 
 
-def bench_ablation(args: argparse.Namespace) -> dict:
+def bench_ablation(config: AblationBenchConfig) -> dict:
     from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
     from trioman.toolkit.lpips import load_lpips_or_say_why
 
-    corpus, out = Path(args.corpus), Path(args.out)
-    if args.baseline_frames not in ("all", "subset"):
-        raise ValueError(f"--baseline-frames: ablation trains on one corpus variant, 'all' or 'subset', got {args.baseline_frames!r}")
+    corpus, out = Path(config.corpus), Path(config.out)
     if not (corpus / CORPUS_JSON).is_file():
-        build_corpus(corpus, CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size,
-                                          baseline_frames=args.baseline_frames))
+        build_corpus(corpus, CorpusConfig(train_subjects=config.subjects, heldout_subjects=config.heldout, size=config.size,
+                                          baseline_frames=config.baseline_frames))
     meta = json.loads((corpus / CORPUS_JSON).read_text())
     heldout = [s["name"] for s in meta["subjects"] if s["role"] == "heldout"]
-    names = args.ablation_subjects.split(",") if args.ablation_subjects else heldout
+    names = list(config.ablation_subjects) if config.ablation_subjects else heldout
     unknown = sorted(set(names) - set(heldout))
     if unknown:
-        raise ValueError(f"--ablation-subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
-    plan = plan_of(args)
-    only = set(args.variants.split(",")) if getattr(args, "variants", None) else None
+        raise ValueError(f"ablation_subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
+    plan = plan_of(config)
+    only = set(config.variants) if config.variants else None
     known = {v for v, *_ in plan.variants}
     if only is not None and not only <= known:
-        raise ValueError(f"--variants: unknown {sorted(only - known)}; the plan's rows are {[v for v, *_ in plan.variants]}")
+        raise ValueError(f"variants: unknown {sorted(only - known)}; the plan's rows are {[v for v, *_ in plan.variants]}")
     t0 = time.perf_counter()
-    report_only = bool(getattr(args, "no_training", False))
+    report_only = not config.training
     keys = needed_models(sorted(only) if only is not None else list(known))
-    models, model_info = _trained_models(out) if report_only else _models(corpus, out, args, keys)
+    models, model_info = _trained_models(out) if report_only else _models(corpus, out, config, keys)
     print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
     from trioman.toolkit.corpus import finished
     from trioman.toolkit.train.loop import train
@@ -278,10 +324,10 @@ def bench_ablation(args: argparse.Namespace) -> dict:
             _grid(subject, out, name, done)
         if "baseline" in done:  # pseudo-GT is made from the baseline avatar
             truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan, out, name)
-    trips = [triplet_paths(corpus, args.baseline_frames)["heldout"][heldout.index(n)] for n in names]
+    trips = [triplet_paths(corpus, config.baseline_frames)["heldout"][heldout.index(n)] for n in names]
     check = {c: condition_check(models[f"refiner_{c}"], trips, c) for c in ("tex+geo", "warp+geo")
              if f"refiner_{c}" in models}
-    report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": args.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
+    report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": config.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
     report["summary"] = summarise(results)
@@ -289,15 +335,11 @@ def bench_ablation(args: argparse.Namespace) -> dict:
     return report
 
 
-def plan_of(args: argparse.Namespace) -> AblationPlan:
-    """The plan of the command's options (defaults: AblationPlan's)."""
-    d = AblationPlan()
-    given = {"iterations": args.iterations or d.iterations, "seeds": args.seeds, "detail_sigma": args.detail_sigma}
-    for key, flag in (("start", "augment_start"), ("pool", "augment_pool"), ("refresh", "augment_refresh"),
-                      ("mask", "augment_mask"), ("coverage", "coverage"), ("pose_noise", "pose_noise")):
-        if getattr(args, flag, None) is not None:
-            given[key] = getattr(args, flag)
-    return AblationPlan(**given)
+def plan_of(config: AblationBenchConfig) -> AblationPlan:
+    """The avatar runs' plan of ``config``."""
+    return AblationPlan(iterations=config.iterations, seeds=config.seeds, start=config.augment_start,
+                        refresh=config.augment_refresh, pool=config.augment_pool, detail_sigma=config.detail_sigma,
+                        mask=config.augment_mask, coverage=config.coverage, pose_noise=config.pose_noise)
 
 
 def regime_subject(subject: Path, out: Path, plan: AblationPlan) -> Path:
@@ -399,7 +441,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     from trioman.runtime.image_io import write_png
     from trioman.runtime.metrics import psnr as psnr_db
     from trioman.runtime.preview import contact_sheet
-    from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
+    from trioman.runtime.pseudo_gt import PseudoConfig, make_pseudo_frames
     from trioman.toolkit.evaluate import load_run
     from trioman.toolkit.synth.subject import TruthRenderer
     from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
@@ -419,10 +461,8 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
         i = int(train[p])
         c = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]), np.asarray(subj.viewmat[i]),
                    rng, 1, AugmentConfig().generator())[0]
-        m = subj.mask(i)[..., None]
-        K = np.asarray(subj.K[i], np.float64)
-        picked.append((c, Source(int(p), (subj.image(i) * m + (1 - m) * bg).astype(np.float32), K, bg),
-                       truth_renderer.at_draw(i, c, K)))
+        src = _source(subj, int(p), i, bg)
+        picked.append((c, src, truth_renderer.at_draw(i, c, src.K)))
     truth = np.stack([t[0] for _, _, t in picked])
     mask = np.stack([t[1] for _, _, t in picked])[..., None]
 
@@ -481,6 +521,14 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     return found
 
 
+def _source(subj, position: int, i: int, bg: np.ndarray):
+    """Training frame ``i`` (``position`` among the training frames) over ``bg``: the shared step's source frame."""
+    from trioman.runtime.pseudo_gt import Source
+
+    m = subj.mask(i)[..., None]
+    return Source(position, (subj.image(i) * m + (1 - m) * bg).astype(np.float32), np.asarray(subj.K[i], np.float64), bg)
+
+
 def _view_change(a: np.ndarray, b: np.ndarray) -> float:
     """The angle (degrees) between two world->camera rotations."""
     r = np.asarray(a, np.float64)[:3, :3] @ np.asarray(b, np.float64)[:3, :3].T
@@ -496,7 +544,7 @@ def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, alig
     "pose_other": mean summed joint-angle change (degrees), "score_gap": mean score difference}."""
     from trioman.runtime.generator import sample
     from trioman.runtime.metrics import psnr as psnr_db
-    from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
+    from trioman.runtime.pseudo_gt import PseudoConfig, make_pseudo_frames
     from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
     from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
 
@@ -510,9 +558,8 @@ def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, alig
         i = int(train[p])
         cands = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]),
                        np.asarray(subj.viewmat[i]), rng, 2, AugmentConfig().generator())
-        m = subj.mask(i)[..., None]
-        K = np.asarray(subj.K[i], np.float64)
-        src = Source(int(p), (subj.image(i) * m + (1 - m) * bg).astype(np.float32), K, bg)
+        src = _source(subj, int(p), i, bg)
+        K = src.K
         made = make_pseudo_frames(cands, src, lambda c: render_candidate(avatar, c, torch.from_numpy(K.astype(np.float32)), W, H, bg),
                                   PseudoConfig("examined", keep_carried=True), body=subj.body, aligner=aligner, refiner=refiner, examiner=examiner)
         quality = []

@@ -253,7 +253,7 @@ def export_avatar(run: str | Path, out: str | Path, checkpoint: str | Path | Non
     posed = {}
     for i in ply_frames:
         if not -subject.num_frames <= int(i) < subject.num_frames:
-            raise ValueError(f"--ply-frame: frame {i} out of range for the subject's {subject.num_frames} frames")
+            raise ValueError(f"ply_frames: frame {i} out of range for the subject's {subject.num_frames} frames")
         i = int(i) % subject.num_frames
         posed[str(i)] = (np.asarray(subject.poses[i]), np.asarray(subject.trans[i]))
     source = {"run": str(Path(run).resolve()), "checkpoint": str(Path(ckpt).resolve()) if ckpt else None,

@@ -56,7 +56,7 @@ def triplet_paths(root: str | Path, baseline_frames: str = "all") -> dict[str, l
     for s in meta["subjects"]:
         p = root / "triplets" / (baseline_frames if s["role"] == "train" else "heldout") / f"{s['name']}.npz"
         if not p.is_file():
-            raise FileNotFoundError(f"{p}: missing triplet file (build the corpus with --baseline-frames {baseline_frames})")
+            raise FileNotFoundError(f"{p}: missing triplet file (build the corpus with `baseline_frames` {baseline_frames})")
         out[s["role"]].append(p)
     return out
 

@@ -69,11 +69,11 @@ def from_env() -> Ranks:
 
 
 def check_device(device: str) -> None:
-    """ValueError naming --device unless it is cpu or cuda, and cuda is present when asked for."""
+    """ValueError naming ``device`` unless it is cpu or cuda, and cuda is present when asked for."""
     if device not in DEVICES:
-        raise ValueError(f"--device: expected one of {DEVICES}, got {device!r}")
+        raise ValueError(f"device: expected one of {DEVICES}, got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: CUDA is not available (torch.cuda.is_available() is False)")
+        raise ValueError("device cuda: CUDA is not available (torch.cuda.is_available() is False)")
 
 
 @contextmanager
@@ -143,6 +143,6 @@ def check_world_size(saved: int, ranks: Ranks, where: object) -> None:
     """A checkpoint written at ``saved`` ranks resumes only at the same world size: the sample stream
     is the same, but a sum of gradients over a different split of the batch rounds differently."""
     if saved != ranks.world_size:
-        raise ValueError(f"--nproc-per-node: {where} was written by a run of {saved} process(es), this one has "
+        raise ValueError(f"world_size: {where} was written by a run of {saved} process(es), this one has "
                          f"{ranks.world_size}; resume it with {saved} in all (torchrun --nnodes x --nproc-per-node), "
-                         f"or start a new --out")
+                         f"or start a new run folder")

@@ -59,7 +59,7 @@ def refiner_export_size(config: Any, size: int | Sequence[int] | None, calibrati
     f = multiple or config.total_downsample
     if hw[0] % f or hw[1] % f:
         raise ExportError(f"size: (H, W) = {hw} ({origin}) is not a multiple of the Refiner's total downsampling {f}; "
-                          f"pass a size that is (--size)")
+                          f"give a `size` that is")
     return hw
 
 
@@ -181,9 +181,9 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
     nothing, and a non-empty ``out`` is replaced only with ``overwrite``.
     """
     if refiner is None and examiner is None:
-        raise ExportError("nothing to export: give a Refiner and/or an Examiner checkpoint (--refiner / --examiner)")
+        raise ExportError("refiner and examiner: both None, nothing to export; give a Refiner and/or an Examiner checkpoint")
     if out is None:
-        raise ExportError("out: the output folder is required (--out)")
+        raise ExportError("out: the output folder is required")
     variants = _check_variants(variants)
     out = Path(out)
     read = [x for x in (refiner, examiner, *(calibration or ())) if isinstance(x, (str, os.PathLike))]

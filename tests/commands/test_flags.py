@@ -61,6 +61,12 @@ def test_every_flag_a_command_shows_is_one_of_its_own():
      "trioman animate: error: --azimuth: must be a finite number of degrees, got nan"),
     (["render", "A", "--out", "x.png", "--background", "red"],
      "trioman render: error: --background: expected r,g,b numbers in [0, 1], got 'red'"),
+    (["train", "S", "--out", "O", "--augment", "refined"],
+     "trioman train: error: --refiner: --augment refined needs a Refiner (a run folder, checkpoint or .onnx)"),
+    (["train", "S", "--out", "O", "--augment", "aligned", "--threshold", "0.5"],
+     "trioman train: error: --threshold: needs --augment examined and a value in [0, 1], got 0.5"),
+    (["bench", "ablation", "--baseline-frames", "all,subset"],
+     "trioman bench: error: --baseline-frames: ablation trains on one corpus variant, 'all' or 'subset', got 'all,subset'"),
 ])
 def test_the_commands_show_flags(argv, shown, capsys):
     assert main(argv) == 1
@@ -79,3 +85,19 @@ def test_the_library_names_parameters():
         parse_background("red")
     with pytest.raises(ValueError, match=r"^shard: expected I/N with 0 <= I < N, got 2/2$"):
         Shard(2, 2)
+
+
+def test_the_training_library_names_fields():
+    pytest.importorskip("torch")
+    from trioman.bench.ablation import AblationBenchConfig
+    from trioman.toolkit.distributed import check_device
+    from trioman.toolkit.train.augmentation import AugmentConfig
+
+    with pytest.raises(ValueError, match=r"^refiner: `augment` refined needs a Refiner \(a run folder, checkpoint or \.onnx\)$"):
+        AugmentConfig(mode="refined")
+    with pytest.raises(ValueError, match=r"^threshold: needs `augment` examined"):
+        AugmentConfig(mode="aligned", threshold=0.5)
+    with pytest.raises(ValueError, match=r"^device: expected one of"):
+        check_device("tpu")
+    with pytest.raises(ValueError, match=r"^baseline_frames: ablation trains on one corpus variant"):
+        AblationBenchConfig(baseline_frames="all,subset")

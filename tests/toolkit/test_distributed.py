@@ -100,7 +100,7 @@ def test_two_processes_train_the_one_process_weights_resume_exactly_and_refuse_a
     info = json.loads((tmp_path / "straight" / "fit.json").read_text())["distributed"]
     assert info["world_size"] == 2 and info["global_batch"] == 2 * BATCH
     assert [r["rows"] for r in info["ranks"]] == [[0, BATCH], [BATCH, 2 * BATCH]]
-    with pytest.raises(ValueError, match="--nproc-per-node: .* written by a run of 2 process.*this one has 1"):
+    with pytest.raises(ValueError, match="world_size: .* written by a run of 2 process.*this one has 1"):
         _fit(model, corpus, tmp_path / "resumed", 4, 2 * BATCH, device)
 
 

@@ -67,7 +67,7 @@ def model_file(model_dir: str | Path, gender: str) -> Path:
             return candidate
     raise FileNotFoundError(
         f"{model_dir / name}: SMPL-X model file not found; SMPL-X is licensed and not shipped: register at "
-        f"{SMPLX_URL}, download the SMPL-X npz models and put {name} in {model_dir} (--body-model-dir)")
+        f"{SMPLX_URL}, download the SMPL-X npz models and put {name} in {model_dir} (`model_dir`)")
 
 
 def check_gender(gender: str) -> str:

@@ -107,7 +107,7 @@ def read_pickle(path: Path, allow_pickle: bool) -> Any:
         raise FormatError(f"{path}: missing file")
     if not allow_pickle:
         raise FormatError(f"{path}: a pickled file; reading it runs code from the file, so it is read only with "
-                          f"--allow-pickle (pass it for files you trust)")
+                          f"`allow_pickle` (give it for files you trust)")
     import pickle
 
     try:
@@ -343,8 +343,8 @@ def body_up(records: list[FrameRecord], rest_joints: np.ndarray) -> np.ndarray:
     dirs = np.stack([axis_angle_to_matrix(r.params["root"]) @ spine for r in records])
     mean = dirs.mean(0)
     if np.linalg.norm(mean) < 0.5:
-        raise FormatError("--up body: the body's spine points in no common direction over the frames (mean length "
-                          f"{np.linalg.norm(mean):.2f}); pass --up cameras or --up none")
+        raise FormatError("up body: the body's spine points in no common direction over the frames (mean length "
+                          f"{np.linalg.norm(mean):.2f}); give `up` cameras or `up` none")
     return mean / np.linalg.norm(mean)
 
 
@@ -352,8 +352,8 @@ def cameras_up(records: list[FrameRecord]) -> np.ndarray:
     """The capture world's up from the cameras: the mean of each camera's up (its -y axis in the world). [3], unit."""
     mean = -np.stack([r.R[1] for r in records]).mean(0)
     if np.linalg.norm(mean) < 0.5:
-        raise FormatError("--up cameras: the cameras' up vectors point in no common direction (mean length "
-                          f"{np.linalg.norm(mean):.2f}); pass --up body or --up none")
+        raise FormatError("up cameras: the cameras' up vectors point in no common direction (mean length "
+                          f"{np.linalg.norm(mean):.2f}); give `up` body or `up` none")
     return mean / np.linalg.norm(mean)
 
 
@@ -376,7 +376,7 @@ def upright(records: list[FrameRecord], rest_joints: np.ndarray, up: str,
     +z. up: "body" (the rest spine turned by the roots), "cameras" (their mean up) or "none" (the capture's
     world kept: its +y is taken as up). -> (U [3, 3], what to record in the generator)."""
     if up not in UP_SOURCES:
-        raise ValueError(f"--up: expected one of {list(UP_SOURCES)}, got {up!r}")
+        raise ValueError(f"up: expected one of {list(UP_SOURCES)}, got {up!r}")
     y = np.array([0.0, 1.0, 0.0])
     body, cams = body_up(records, rest_joints), cameras_up(records)
     chosen = {"body": body, "cameras": cams, "none": y}[up]
@@ -405,7 +405,7 @@ def write_subject(out: Path, body: SMPLXBody, records: list[FrameRecord], genera
     if "train" not in splits:
         raise FormatError(f"{out}: no training frames (check the split lists)")
     if up not in UP_SOURCES:
-        raise ValueError(f"--up: expected one of {list(UP_SOURCES)}, got {up!r}")
+        raise ValueError(f"up: expected one of {list(UP_SOURCES)}, got {up!r}")
     W, H = image_size(records[0].image)
     rest_joints = body.rest_joints.double().numpy() @ Y_UP_TO_Z_UP  # back to SMPL-X's frame
     root_joint = rest_joints[0]

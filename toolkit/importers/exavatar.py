@@ -148,7 +148,7 @@ def read_xhumans(subject_dir: Path, allow_pickle: bool, fits: str = "auto", num_
     """The takes' frames, posed by fits that belong to the body they pose (``fits``: ``XHUMANS_FITS``), and that
     body. Says once which fits and body are used."""
     if fits not in XHUMANS_FITS:
-        raise ValueError(f"--fits: expected one of {list(XHUMANS_FITS)}, got {fits!r}")
+        raise ValueError(f"fits: expected one of {list(XHUMANS_FITS)}, got {fits!r}")
     takes = _xhumans_takes(subject_dir)
     fitted = [(split, take) for split, take in takes if (take / EXAVATAR_TAKE_FITS).is_dir()]
     unfitted = [take.name for _, take in takes if not (take / EXAVATAR_TAKE_FITS).is_dir()]
@@ -156,7 +156,7 @@ def read_xhumans(subject_dir: Path, allow_pickle: bool, fits: str = "auto", num_
     records: list[FrameRecord] = []
     if source == "exavatar":
         if not fitted:
-            raise FormatError(f"{subject_dir}: --fits exavatar: no take holds ExAvatar's fitting output "
+            raise FormatError(f"{subject_dir}: `fits` exavatar: no take holds ExAvatar's fitting output "
                               f"(TAKE/{EXAVATAR_TAKE_FITS.as_posix()}/N.json)")
         identity, first = None, None
         for split, take in fitted:
@@ -211,8 +211,8 @@ def read_xhumans(subject_dir: Path, allow_pickle: bool, fits: str = "auto", num_
         "takes": [t.name for _, t in takes], "left_out": []})
     if fitted:
         why = (f"only {len(fitted)} of {len(takes)} takes hold ExAvatar's fitting output ({', '.join(unfitted)} "
-               f"{'has' if len(unfitted) == 1 else 'have'} none; --fits exavatar imports only those)" if unfitted
-               else "--fits xhumans")
+               f"{'has' if len(unfitted) == 1 else 'have'} none; `fits` exavatar imports only those)" if unfitted
+               else "`fits` xhumans")
     else:
         why = f"no take holds ExAvatar's fitting output (TAKE/{EXAVATAR_TAKE_FITS.as_posix()}/N.json)"
     unused = (f"; {subject_dir.name}/smplx_optimized (ExAvatar's identity) is not used: these fits were not made for it"
@@ -314,16 +314,16 @@ def read_custom(video_dir: Path) -> list[FrameRecord]:
 
 
 def _resolve_body(body: BodyConfig, identity: Identity, folder: Path) -> tuple[str, int]:
-    """(gender, num_betas) of the layer: the fits' own; a --gender or --num-betas that would pose another body with
+    """(gender, num_betas) of the layer: the fits' own; a ``gender`` or ``num_betas`` that would pose another body with
     them is refused."""
     if identity.gender is None:
         return body.gender or EXAVATAR_GENDER, identity.betas.size
-    for flag, given, own, where in (("--gender", body.gender, identity.gender, "gender.txt"),
-                                    ("--num-betas", body.num_betas, identity.betas.size, "mean_shape_smplx.npy")):
+    for name, given, own, where in (("gender", body.gender, identity.gender, "gender.txt"),
+                                    ("num_betas", body.num_betas, identity.betas.size, "mean_shape_smplx.npy")):
         if given is not None and given != own:
-            raise ValueError(f"{flag} {given}: X-Humans' own fits were made for its own body, whose value is {own} "
-                             f"({folder / where}); drop {flag}, or give ExAvatar's fits (TAKE/"
-                             f"{EXAVATAR_TAKE_FITS.as_posix()}/) with --fits exavatar")
+            raise ValueError(f"{name} {given}: X-Humans' own fits were made for its own body, whose value is {own} "
+                             f"({folder / where}); drop `{name}`, or give ExAvatar's fits (TAKE/"
+                             f"{EXAVATAR_TAKE_FITS.as_posix()}/) with `fits` exavatar")
     return identity.gender, identity.betas.size
 
 
@@ -334,9 +334,9 @@ def import_exavatar(root: str | Path, dataset: str, out: str | Path, body: BodyC
     is checked before anything is read). up: where the world's up comes from (``common.upright``: "body",
     "cameras" or "none"); fits: X-Humans' fit source (``XHUMANS_FITS``)."""
     if dataset not in DATASETS:
-        raise ValueError(f"--dataset: unknown dataset {dataset!r}; expected one of {list(DATASETS)}")
+        raise ValueError(f"dataset: unknown dataset {dataset!r}; expected one of {list(DATASETS)}")
     if fits not in XHUMANS_FITS or (fits != "auto" and dataset != "xhumans"):
-        raise ValueError(f"--fits {fits}: expected one of {list(XHUMANS_FITS)}, and only with --dataset xhumans")
+        raise ValueError(f"fits {fits}: expected one of {list(XHUMANS_FITS)}, and only with `dataset` xhumans")
     folder = Path(root) / subject if subject else Path(root)
     check_target(out, overwrite, [folder])
     if not folder.is_dir():

@@ -62,11 +62,11 @@ def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | P
     frames_dir, fits_dir = Path(frames_dir), Path(fits_dir)
     masks_dir = Path(masks_dir) if masks_dir is not None else frames_dir.parent / "masks"
     if test_every < 0:
-        raise ValueError(f"--test-every: must be >= 0, got {test_every}")
+        raise ValueError(f"test_every: must be >= 0, got {test_every}")
     inputs = (frames_dir, fits_dir, masks_dir)
     check_target(out, overwrite, list(inputs))
     images = images_by_index(frames_dir, "frames")
-    masks = images_by_index(masks_dir, "masks (pass --masks DIR: one PNG per frame, 255 = person)")
+    masks = images_by_index(masks_dir, "masks (give `masks_dir`: one PNG per frame, 255 = person)")
     fits, crowded = _fit_files(fits_dir)
     if crowded:
         say(f"import: {crowded} of {len(fits)} frames hold several people; person 0 of each frame is imported, but "

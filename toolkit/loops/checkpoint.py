@@ -30,7 +30,7 @@ class ConfigMismatch(ValueError):
         self.run_config, self.config = dict(run_config), dict(config)
         self.differences = config_differences(self.run_config, self.config)
         fields = ", ".join(f"{name}: {_shown(a)} -> {_shown(b)}" for name, (a, b) in self.differences.items())
-        tail = hint or "resume it with the options it was started with, or choose another --out"
+        tail = hint or "resume it with the options it was started with, or choose another run folder"
         super().__init__(f"{checkpoint}: the run's {what} differs from this one ({fields}); {tail}")
 
     def with_hint(self, hint: str) -> "ConfigMismatch":

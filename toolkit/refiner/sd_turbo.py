@@ -116,7 +116,7 @@ class SdTurboRefiner(nn.Module):
         from diffusers.models.attention_processor import AttnProcessor
 
         if config.pretrained_path is None:
-            raise SdTurboFolderError("pretrained_path: the sd-turbo backbone needs a local SD-Turbo folder in diffusers layout (--pretrained DIR)")
+            raise SdTurboFolderError("pretrained_path: the sd-turbo backbone needs a local SD-Turbo folder in diffusers layout")
         root = check_folder(config.pretrained_path)
         self.config = config
         self.views = config.views

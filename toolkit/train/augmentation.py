@@ -61,20 +61,20 @@ class AugmentConfig:
             raise ValueError(f"augment: expected one of {MODES}, got {self.mode!r}")
         needs_refiner = self.mode in ("refined", "examined")
         if needs_refiner and not self.refiner:
-            raise ValueError(f"refiner: --augment {self.mode} needs a Refiner (--refiner RUN|CKPT|ONNX)")
+            raise ValueError(f"refiner: `augment` {self.mode} needs a Refiner (a run folder, checkpoint or .onnx)")
         if self.mode == "examined" and not self.examiner:
-            raise ValueError("examiner: --augment examined needs an Examiner (--examiner RUN|CKPT|ONNX)")
+            raise ValueError("examiner: `augment` examined needs an Examiner (a run folder, checkpoint or .onnx)")
         if self.mode != "examined" and self.examiner:
-            raise ValueError(f"examiner: --augment {self.mode} does not use an Examiner (use --augment examined)")
+            raise ValueError(f"examiner: `augment` {self.mode} does not use an Examiner (use `augment` examined)")
         if not needs_refiner and self.refiner:
-            raise ValueError(f"refiner: --augment {self.mode} does not use a Refiner (use --augment refined or examined)")
+            raise ValueError(f"refiner: `augment` {self.mode} does not use a Refiner (use `augment` refined or examined)")
         if self.per_frame is not None and (isinstance(self.per_frame, bool) or not isinstance(self.per_frame, int)
                                            or self.per_frame < 1):
             raise ValueError(f"per_frame: must be an integer >= 1, got {self.per_frame!r}")
         if self.mode != "examined" and (self.per_frame or 1) != 1:
-            raise ValueError(f"per_frame: {self.per_frame} candidates need an Examiner to choose (--augment examined)")
+            raise ValueError(f"per_frame: {self.per_frame} candidates need an Examiner to choose (`augment` examined)")
         if self.threshold is not None and (self.mode != "examined" or not 0.0 <= self.threshold <= 1.0):
-            raise ValueError(f"threshold: needs --augment examined and a value in [0, 1], got {self.threshold!r}")
+            raise ValueError(f"threshold: needs `augment` examined and a value in [0, 1], got {self.threshold!r}")
         if not 0.0 <= self.start < 1.0:
             raise ValueError(f"augment_start: must lie in [0, 1), got {self.start!r}")
         for name in ("refresh", "pool"):
@@ -88,9 +88,9 @@ class AugmentConfig:
         if not (isinstance(self.detail_sigma, (int, float)) and math.isfinite(self.detail_sigma) and self.detail_sigma >= 0):
             raise ValueError(f"augment_detail_sigma: must be a finite number >= 0 (pixels), got {self.detail_sigma!r}")
         if self.detail_sigma > 0 and not needs_refiner:
-            raise ValueError("augment_detail_sigma: needs a Refiner (--augment refined or examined)")
+            raise ValueError("augment_detail_sigma: needs a Refiner (`augment` refined or examined)")
         if self.keep_carried and not needs_refiner:
-            raise ValueError("augment_keep_carried: needs a Refiner to fill what was not carried (--augment refined or examined)")
+            raise ValueError("augment_keep_carried: needs a Refiner to fill what was not carried (`augment` refined or examined)")
         if isinstance(self.align_sources, bool) or not isinstance(self.align_sources, int) or self.align_sources < 1:
             raise ValueError(f"augment_align_sources: must be an integer >= 1, got {self.align_sources!r}")
         if self.mask not in MASKS:

@@ -89,10 +89,10 @@ def _prepare_run(run: Path, subject: Subject, cfg: TrainConfig, resume: bool,
     (toolkit/train/resume.py); writes nothing but removes an interrupted run's temporary files."""
     if not (run / CONFIG_JSON).exists():
         if extend_iterations is not None:
-            raise FileNotFoundError(f"--extend-iterations: no run in {run} to extend")
+            raise FileNotFoundError(f"extend_iterations: no run in {run} to extend")
         return cfg, new_record(subject, cfg)
     if not resume:
-        raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
+        raise FileExistsError(f"{run}: a run is already there (pass `resume` to continue it, or choose another `run`)")
     remove_temp_files(run)
     ckpt = latest_checkpoint(run)
     step = 0 if ckpt is None else int(ckpt.stem.split("_")[1])
@@ -136,9 +136,9 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     """
     run, subject_path = Path(run), Path(subject_path)
     if not resume and (run / CONFIG_JSON).exists():
-        raise FileExistsError(f"{run}: a run is already there (pass --resume to continue it, or choose another --out)")
+        raise FileExistsError(f"{run}: a run is already there (pass `resume` to continue it, or choose another `run`)")
     if extend_iterations is not None and not resume:
-        raise ValueError("--extend-iterations: needs --resume (it continues a run)")
+        raise ValueError("extend_iterations: needs `resume` (it continues a run)")
     subject = load_subject(subject_path)
     cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
     frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)

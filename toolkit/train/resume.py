@@ -142,7 +142,7 @@ def check_resume(run: Path, record: dict[str, Any], subject: Subject, cfg: Train
     record, extended to ``extend_iterations`` when given (``step``: the step of the checkpoint the run resumes
     from). The same ``extend_iterations`` as the run's last extension continues that extension; without it,
     the iteration count the run was started with (or any it was extended from) resumes it as recorded."""
-    where = f"--resume: {Path(run) / CONFIG_JSON}"
+    where = f"resume: {Path(run) / CONFIG_JSON}"
     if record.get("trioman_version") != __version__:
         raise ValueError(f"{where}: the run was made by trioman {record.get('trioman_version')}, this is trioman "
                          f"{__version__}; resume it with that version, or start a new run")
@@ -169,7 +169,7 @@ def check_resume(run: Path, record: dict[str, Any], subject: Subject, cfg: Train
         more = f" and {len(diff) - _SHOWN} more" if len(diff) > _SHOWN else ""
         raise ValueError(f"{where}: the training config differs from the run's ({'; '.join(diff[:_SHOWN])}{more}); "
                          f"resume with the options the run was started with: `{resume_command(run, record)}` (or "
-                         f"--extend-iterations N to continue it to N iterations)")
+                         f"`extend_iterations` N to continue it to N iterations)")
     if saved.extra_frames is not None and record.get("extra_frames_sha256") not in (
             None, subject_sha256(load_subject(saved.extra_frames))):
         raise ValueError(f"{where}: the extra frames {saved.extra_frames} changed since the run started; start a new run")
@@ -186,9 +186,9 @@ def check_resume(run: Path, record: dict[str, Any], subject: Subject, cfg: Train
     if extensions and extend_iterations == saved.iterations == extensions[-1].get("iterations"):
         return saved, record  # the same extension, interrupted: it goes on
     if extend_iterations <= saved.iterations:
-        hint = (f"resume it with `{resume_command(run, record)}`, or extend it further with --extend-iterations N, "
+        hint = (f"resume it with `{resume_command(run, record)}`, or extend it further with `extend_iterations` N, "
                 f"N > {saved.iterations}")
-        raise ValueError(f"--extend-iterations: {extend_iterations} is not more than the run's {saved.iterations} "
+        raise ValueError(f"extend_iterations: {extend_iterations} is not more than the run's {saved.iterations} "
                          f"iterations; {hint}")
     extended = dataclasses.replace(saved, iterations=extend_iterations)
     extension = {"from_step": step, "iterations_before": saved.iterations, "iterations": extend_iterations,

@@ -9,19 +9,26 @@ import argparse
 import dataclasses
 
 # target -> (module, report function, markdown function, config class); the report function takes the target's
-# config (a frozen dataclass of the module, built by ``bench_config``), or the parsed options where the class is None
+# config (a frozen dataclass of the module, built by ``bench_config``)
 TARGETS = {
     "synth": ("trioman.bench.synth", "bench_synth", "synth_markdown", "SynthBenchConfig"),
     "train": ("trioman.bench.train", "bench_train", "train_markdown", "TrainBenchConfig"),
     "render": ("trioman.bench.render", "bench_render", "render_markdown", "RenderBenchConfig"),
     "models": ("trioman.bench.models", "bench_models", "models_markdown", "ModelsBenchConfig"),
     "deploy": ("trioman.bench.deploy", "bench_deploy", "deploy_markdown", "DeployBenchConfig"),
-    "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown", None),
+    "ablation": ("trioman.bench.ablation", "bench_ablation", "ablation_markdown", "AblationBenchConfig"),
     "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown", "FramesBenchConfig"),
     "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown", "StabilityBenchConfig"),
     "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown", "ScaleBenchConfig"),
 }
-LISTS = ("presets", "baseline_frames")  # comma-separated options, tuples of names in the configs
+# The configs' fields the library's errors name: each the option of its name (``training``: --no-training) -> the flags
+# as typed (trioman/commands/flags.py).
+FLAGS = {name: "--" + name.replace("_", "-") for name in (
+    "out", "size", "frames", "seed", "presets", "full_iterations", "eval_every", "avatar_run", "corpus", "subjects",
+    "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
+    "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
+    "detail_sigma", "coverage", "pose_noise", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
+    "variants", "ablation_subjects")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -82,14 +89,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def bench_config(cls: type, args: argparse.Namespace):
-    """A target's config ``cls`` from the parsed options: each field from the option of its name (a comma-separated
-    list split into a tuple, empty names dropped; ``training`` is not --no-training); an option left unset (None)
-    keeps the field's default."""
+    """A target's config ``cls`` from the parsed options: each field from the option of its name (for a tuple of
+    names, a comma-separated list, empty names dropped; ``training`` is not --no-training); an option left unset
+    (None) keeps the field's default."""
     values = {}
     for field in dataclasses.fields(cls):
         value = not args.no_training if field.name == "training" else getattr(args, field.name)
         if value is not None:
-            values[field.name] = tuple(v for v in value.split(",") if v) if field.name in LISTS else value
+            names = str(field.type).startswith("tuple[str")
+            values[field.name] = tuple(v for v in value.split(",") if v) if names else value
     return cls(**values)
 
 
@@ -100,14 +108,7 @@ def run(args: argparse.Namespace) -> int:
 
     module, bench, markdown, config = TARGETS[args.target]
     module = importlib.import_module(module)
-    if config is None:  # ablation: the parsed options themselves, with its --size and --heldout defaults
-        if args.size is None:
-            args.size = 128
-        if args.heldout is None:
-            args.heldout = 3
-        report = getattr(module, bench)(args)
-    else:
-        report = getattr(module, bench)(bench_config(getattr(module, config), args))
+    report = getattr(module, bench)(bench_config(getattr(module, config), args))
     if args.target in ("models", "deploy", "ablation"):
         report["machine"], report["peak_rss_mib"] = machine(), peak_rss_mib()
     md = getattr(module, markdown)(report)

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import argparse
 
-# The parameters the library's errors name (runtime.image_io.check_folder_target) -> the flags as typed; trioman/cli.py
+# The parameters the library's errors name -> the flags as typed; trioman/cli.py
 # shows the errors with them (trioman/commands/flags.py).
-FLAGS = {"overwrite": "--overwrite"}
+FLAGS = {"overwrite": "--overwrite", "out": "--out", "refiner": "--refiner", "examiner": "--examiner", "size": "--size",
+         "ply_frames": "--ply-frame"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -13,7 +13,15 @@ from typing import Mapping
 
 # Commands whose modules declare no FLAGS of their own: the parameters their library errors name -> the flags.
 UNDECLARED = {
-    "train": {"refiner": "--refiner", "examiner": "--examiner", "image_scale": "--image-scale"},
+    "train": {"run": "--out", "image_scale": "--image-scale", "extra_frames": "--extra-frames",
+              "extra_weight": "--extra-weight", "resume": "--resume", "extend_iterations": "--extend-iterations",
+              "augment": "--augment", "refiner": "--refiner", "examiner": "--examiner",
+              "per_frame": "--per-frame", "threshold": "--threshold", "augment_start": "--augment-start",
+              "augment_refresh": "--augment-refresh", "augment_pool": "--augment-pool", "augment_share": "--augment-share",
+              "augment_weight": "--augment-weight", "augment_detail_sigma": "--augment-detail-sigma",
+              "augment_mask": "--augment-mask", "augment_align_sources": "--augment-sources",
+              "augment_keep_carried": "--augment-keep-carried", "keep_carried": "--augment-keep-carried",
+              "unknown_weight": "--augment-unknown-weight"},
 }
 
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-# The parameters the library's errors name (runtime.image_io.check_folder_target) -> the flags as typed; trioman/cli.py
+# The parameters the library's errors (and its lines to ``say``) name -> the flags as typed; trioman/cli.py
 # shows the errors with them (trioman/commands/flags.py).
-FLAGS = {"overwrite": "--overwrite"}
+FLAGS = {"overwrite": "--overwrite", "up": "--up", "fits": "--fits", "dataset": "--dataset",
+         "allow_pickle": "--allow-pickle", "gender": "--gender", "num_betas": "--num-betas",
+         "model_dir": "--body-model-dir", "masks_dir": "--masks", "test_every": "--test-every"}
 
 
 def _body_arguments(parser: argparse.ArgumentParser, gender: str | None, num_betas: bool) -> None:
@@ -60,8 +62,12 @@ def _inputs(args: argparse.Namespace) -> list[Path]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from trioman.commands.flags import flag_message
     from trioman.runtime.formats.subject import SUBJECT_FOLDER
     from trioman.runtime.image_io import check_folder_target
+
+    def say(line: str) -> None:
+        print(flag_message(line, FLAGS))
 
     # before anything is read or the body-model stack imported: --out may not replace a foreign folder, nor be,
     # hold or lie inside the capture (docs/design.md, "What a command may delete, and what it may read")
@@ -72,13 +78,13 @@ def run(args: argparse.Namespace) -> int:
         body = BodyConfig(args.body_model_dir, args.gender, args.num_betas, args.flat_hand_mean)
         subject = import_exavatar(args.root, args.dataset, args.out, body, subject=args.subject,
                                   allow_pickle=args.allow_pickle, overwrite=args.overwrite, up=args.up,
-                                  fits=args.fits)
+                                  fits=args.fits, say=say)
     else:
         from trioman.toolkit.importers.smplx_fits import import_smplx_fits
 
         subject = import_smplx_fits(args.frames, args.fits, args.out, args.body_model_dir, masks_dir=args.masks,
                                     gender=args.gender, flat_hand_mean=args.flat_hand_mean,
-                                    test_every=args.test_every, overwrite=args.overwrite, up=args.up)
+                                    test_every=args.test_every, overwrite=args.overwrite, up=args.up, say=say)
     counts = {s: len(subject.indices(s)) for s in ("train", "test")}
     print(f"import: subject {subject.root}: {subject.num_frames} frames ({counts['train']} train, {counts['test']} test), "
           f"{subject.width}x{subject.height}, SMPL-X body ({subject.num_joints} joints)")

@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import argparse
 
+# The parameters the library's errors name -> the flags as typed (trioman/commands/flags.py).
+FLAGS = {"device": "--device", "baseline_frames": "--baseline-frames"}
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corpus", required=True, help="corpus folder (trioman synth-corpus)")

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import argparse
 
+# The parameters the library's errors name -> the flags as typed (trioman/commands/flags.py).
+FLAGS = {"device": "--device", "baseline_frames": "--baseline-frames", "pretrained_path": "--pretrained"}
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group(required=True)

@@ -108,7 +108,7 @@ def test_smplx_file_lacking_a_key(tmp_path, smplx_model_dir):
 
 def test_pickles_need_allow_pickle(tmp_path, smplx_model_dir):
     msg = exavatar(tmp_path, smplx_model_dir, "xhumans", lambda f: None, allow_pickle=False)
-    assert "mesh-f00001_smplx.pkl: a pickled file" in msg and "--allow-pickle" in msg
+    assert "mesh-f00001_smplx.pkl: a pickled file" in msg and "`allow_pickle`" in msg
 
 
 def test_missing_model_file_from_the_command_line(tmp_path, smplx_model_dir, capsys):
@@ -147,7 +147,7 @@ def test_up_body_needs_a_common_spine_direction(tmp_path, smplx_model_dir):
             edit_json(fits / f"{n}.json", "root_pose", axis)
 
     msg = exavatar(tmp_path, smplx_model_dir, "custom", scatter_roots)
-    assert msg.startswith("--up body: the body's spine points in no common direction") and "--up cameras" in msg
+    assert msg.startswith("up body: the body's spine points in no common direction") and "`up` cameras" in msg
 
 
 # --------------------------------------------------------------------------------------------------
@@ -193,12 +193,12 @@ def test_xhumans_own_body_files(tmp_path, smplx_model_dir):
     msg = exavatar(tmp_path / "c", smplx_model_dir, "xhumans", lambda f: np.save(f / "mean_shape_smplx.npy", [np.nan] * 10))
     assert msg.endswith("mean_shape_smplx.npy: betas: 10 non-finite value(s) (NaN/Inf)")
     msg = exavatar(tmp_path / "d", smplx_model_dir, "xhumans", lambda f: None, num_betas=100)
-    assert msg.startswith("--num-betas 100: X-Humans' own fits were made for its own body, whose value is 10")
+    assert msg.startswith("num_betas 100: X-Humans' own fits were made for its own body, whose value is 10")
 
 
 def test_fits_flag_only_for_xhumans(tmp_path, smplx_model_dir):
     layouts.write_custom(tmp_path / "data", smplx_model_dir)
-    with pytest.raises(ValueError, match="--fits xhumans: .*only with --dataset xhumans"):
+    with pytest.raises(ValueError, match="fits xhumans: .*only with `dataset` xhumans"):
         import_exavatar(tmp_path / "data" / "myvideo", "custom", tmp_path / "subject", BodyConfig(str(smplx_model_dir)),
                         fits="xhumans", say=lambda _: None)
 

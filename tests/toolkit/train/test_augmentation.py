@@ -122,9 +122,9 @@ def test_examiner_threshold_drops_candidates_and_training_goes_on(subject, model
 
 
 def test_config_errors_name_the_option():
-    with pytest.raises(ValueError, match="refiner: --augment refined needs a Refiner"):
+    with pytest.raises(ValueError, match="^refiner: `augment` refined needs a Refiner"):
         AugmentConfig(mode="refined")
-    with pytest.raises(ValueError, match="examiner: --augment examined needs an Examiner"):
+    with pytest.raises(ValueError, match="^examiner: `augment` examined needs an Examiner"):
         AugmentConfig(mode="examined", refiner="r")
     with pytest.raises(ValueError, match="per_frame: 2 candidates need an Examiner"):
         AugmentConfig(mode="coarse", per_frame=2)
@@ -241,7 +241,7 @@ def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys)
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--refiner", "r.pt"]) == 1
     assert "--refiner: needs --augment" in capsys.readouterr().err
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined"]) == 1
-    assert "refiner: --augment refined needs a Refiner" in capsys.readouterr().err
+    assert "error: --refiner: --augment refined needs a Refiner" in capsys.readouterr().err
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined", "--refiner",
                  str(tmp_path / "nope.pt")]) == 1
     assert "--refiner: not found" in capsys.readouterr().err

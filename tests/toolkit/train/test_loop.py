@@ -133,10 +133,10 @@ def test_resume_refuses_another_subject_config_or_code_naming_what_differs(subje
     run = train(mine, tmp_path / "run", cfg, progress=False, stop_after=2)  # killed after its first checkpoint
     record = (run / "config.json").read_text()
     other = copy_subject(subject, tmp_path / "other")  # same content, another subject folder
-    with pytest.raises(ValueError, match=rf"--resume: .*config.json: the run trains on the subject {mine}, not {other}"):
+    with pytest.raises(ValueError, match=rf"resume: .*config.json: the run trains on the subject {mine}, not {other}"):
         train(other, run, cfg, resume=True, progress=False)
     with pytest.raises(ValueError, match=r"the training config differs from the run's \(iterations: 4 -> 5000; "
-                                         r"preset: 'quick' -> 'full'; seed: 0 -> 7\).*--extend-iterations"):
+                                         r"preset: 'quick' -> 'full'; seed: 0 -> 7\).*`extend_iterations`"):
         train(mine, run, dataclasses.replace(cfg, preset="full", seed=7, iterations=5000), resume=True, progress=False)
     import trioman.toolkit.train.resume as resume_module
 
@@ -155,9 +155,9 @@ def test_resume_refuses_another_subject_config_or_code_naming_what_differs(subje
 def test_extend_iterations_continues_the_run_and_records_it(subject, tmp_path):
     cfg = TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY_AVATAR)
     run = train(subject, tmp_path / "run", cfg, progress=False)
-    with pytest.raises(ValueError, match="--extend-iterations: 2 is not more than the run's 2 iterations"):
+    with pytest.raises(ValueError, match="extend_iterations: 2 is not more than the run's 2 iterations"):
         train(subject, run, cfg, resume=True, progress=False, extend_iterations=2)
-    with pytest.raises(ValueError, match="--extend-iterations: needs --resume"):
+    with pytest.raises(ValueError, match="extend_iterations: needs `resume`"):
         train(subject, tmp_path / "new", cfg, progress=False, extend_iterations=4)
     train(subject, run, cfg, resume=True, progress=False, extend_iterations=4)
     assert load_checkpoint(list_checkpoints(run)[-1])["step"] == 4 and len(losses(run)) == 4
@@ -237,6 +237,9 @@ def test_command_line_resume_refusal_and_extension(subject, tmp_path, capsys, mo
     assert said.out == "" and len(said.err.strip().splitlines()) == 1  # the refusal alone, no LPIPS note
     err = said.err
     assert "Traceback" not in err and "the training config differs from the run's (seed: 0 -> 7)" in err
+    assert err.startswith("trioman train: error: --resume: ") and "(or --extend-iterations N to continue it" in err
+    assert main(["train", str(subject), "--out", out, "--iterations", "2", "--quiet"]) == 1
+    assert "a run is already there (pass --resume to continue it, or choose another --out)" in capsys.readouterr().err
     assert main(["train", str(subject), "--out", out, "--resume", "--extend-iterations", "3", "--quiet"]) == 0
     assert json.loads((tmp_path / "cli" / "config.json").read_text())["extensions"][0]["iterations"] == 3
 

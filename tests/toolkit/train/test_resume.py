@@ -37,7 +37,7 @@ def test_an_interrupted_extension_resumes_with_the_same_command(subject, tmp_pat
     train(subject, run, cfg, resume=True, progress=False)  # the starting command resumes the extended run as recorded
     assert "was extended to 4 iterations" in capsys.readouterr().err
     command = f"`trioman train {subject.resolve()} --out {run} --iterations 2 --resume --extend-iterations 4`"
-    for change, extend, problem in ((cfg, 3, "--extend-iterations: 3 is not more than the run's 4 iterations; resume it "
+    for change, extend, problem in ((cfg, 3, "extend_iterations: 3 is not more than the run's 4 iterations; resume it "
                                               f"with {command}"),
                                     (dataclasses.replace(cfg, iterations=3), None, f"iterations: 4 -> 3); resume with the "
                                                                                    f"options the run was started with: "
