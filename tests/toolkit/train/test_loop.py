@@ -75,7 +75,7 @@ def test_point_colours_train_at_their_own_decaying_learning_rate(subject, tmp_pa
 def test_refuses_to_overwrite_a_run_and_reports_bad_checkpoints(subject, tmp_path):
     cfg = TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY_AVATAR)
     run = train(subject, tmp_path / "r", cfg, progress=False)
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(FileExistsError, match="pass `resume`"):
         train(subject, run, cfg, progress=False)
     ckpt = list_checkpoints(run)[-1]
     ckpt.write_bytes(ckpt.read_bytes()[:100])  # truncated
