@@ -18,7 +18,8 @@ Variants, per held-out subject (``VARIANTS``), all from the quick preset:
 
 Every augmented row is also reported as the share of the ceiling's gain over the control it recovers.
 The plan's ``coverage`` and ``pose_noise`` re-render the held-out subjects with that share of the turn and
-that fitting noise (OUT/subjects); with pose noise the avatars are evaluated at the true test poses.
+that fitting noise (OUT/subjects); with pose noise the avatars are evaluated at the true test poses. Its ``reach``
+scales the Generator's camera sigmas (the augmented runs' folders say so; the unaugmented ones are shared).
 
 With ``--detail-sigma S`` a lever (``LEVERS``) is trained too: GRd_tex+geo, the tex+geo Refiner's
 pseudo-GT keeping only its detail (``--augment-detail-sigma S``, runtime.generator.keep_detail).
@@ -91,11 +92,31 @@ class AblationPlan:
     mask: str = "carried"  # pseudo frames' mask (AugmentConfig.mask)
     coverage: float = 1.0  # share of a full turn the held-out subjects' training frames span (re-rendered when < 1)
     pose_noise: float = 0.0  # degrees of fitting noise on the held-out subjects' stored poses (re-rendered when > 0)
+    reach: float = 1.0  # the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of their defaults
+
+    @property
+    def capture(self) -> str:
+        """The suffix of the subjects (and the unaugmented runs) of this plan's capture regime ('' for the corpus's own)."""
+        return "" if (self.coverage, self.pose_noise) == (1.0, 0.0) else f"-cov{self.coverage:g}-noise{self.pose_noise:g}"
 
     @property
     def regime(self) -> str:
-        """The suffix of the subjects and runs of this plan's capture regime ('' for the corpus's own subjects)."""
-        return "" if (self.coverage, self.pose_noise) == (1.0, 0.0) else f"-cov{self.coverage:g}-noise{self.pose_noise:g}"
+        """The suffix of the augmented runs: the capture regime, and the Generator's reach when not the default."""
+        return self.capture + ("" if self.reach == 1.0 else f"-reach{self.reach:g}")
+
+    @property
+    def camera(self) -> tuple[float, float, float] | None:
+        """AugmentConfig.camera of the plan's reach (None: the Generator's defaults)."""
+        from trioman.runtime.generator import GeneratorConfig
+
+        g = GeneratorConfig()
+        return None if self.reach == 1.0 else tuple(self.reach * s for s in (g.azimuth_sigma, g.elevation_sigma, g.distance_sigma))
+
+    def run(self, out: Path, heldout: str, variant: str, seed: int = 0) -> Path:
+        """The run folder of ``variant`` on held-out subject ``heldout``: an unaugmented run does not depend on the
+        Generator's reach, so regimes that differ only in reach share it."""
+        augmented = next(m for n, m, *_ in ALL_VARIANTS if n == variant) is not None
+        return out / "runs" / (heldout + (self.regime if augmented else self.capture)) / f"{variant.replace('+', '_')}_s{seed}"
 
     @property
     def variants(self) -> tuple[tuple, ...]:
@@ -126,6 +147,7 @@ class AblationBenchConfig:
     detail_sigma: float | None = AblationPlan.detail_sigma  # trains the GRd_tex+geo lever with this blur sigma (pixels)
     coverage: float = AblationPlan.coverage  # share of a full turn the held-out subjects' training frames span
     pose_noise: float = AblationPlan.pose_noise  # degrees of fitting noise on the held-out subjects' stored poses
+    reach: float = AblationPlan.reach  # the Generator's camera sigmas as a multiple of their defaults
     augment_start: float = AblationPlan.start  # warm-up share of an augmented run
     augment_pool: int = AblationPlan.pool  # pseudo-GT frames per pool rebuild
     augment_refresh: int = AblationPlan.refresh  # steps between pool rebuilds
@@ -152,6 +174,8 @@ class AblationBenchConfig:
         for name in ("variants", "ablation_subjects"):
             if getattr(self, name) is not None:
                 check_names(self, name)
+        if not (isinstance(self.reach, (int, float)) and 0 < self.reach <= 10):
+            raise ValueError(f"reach: the Generator's camera sigmas as a multiple of their defaults, in (0, 10], got {self.reach!r}")
         if not isinstance(self.training, bool):
             raise ValueError(f"training: must be a bool, got {self.training!r}")
 
@@ -179,7 +203,7 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
     if any(name == n for n, *_ in LEVERS):
         paths["detail_sigma"] = plan.detail_sigma
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
-                        weight=plan.weight, mask=plan.mask, **paths, **SETTINGS.get(name, {}))
+                        weight=plan.weight, mask=plan.mask, camera=plan.camera, **paths, **SETTINGS.get(name, {}))
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
@@ -308,7 +332,7 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
         results[name] = {}
         for variant, seed in _variant_runs(plan):
             t = time.perf_counter()
-            run = out / "runs" / name / f"{variant.replace('+', '_')}_s{seed}"
+            run = plan.run(out, heldout_name, variant, seed)
             if not finished(run, _iterations(variant, plan)):
                 if report_only or (only is not None and variant not in only):
                     missing.append(f"{name}/{run.name}")
@@ -321,9 +345,9 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
                   f"({r['train_seconds']:.0f} s training, {time.perf_counter() - t:.0f} s with evaluation)", flush=True)
         done = [v for v, *_ in plan.variants if "0" in results[name].get(v, {})]
         if done:
-            _grid(subject, out, name, done)
+            _grid(out, name, [(v, plan.run(out, heldout_name, v)) for v in done])
         if "baseline" in done:  # pseudo-GT is made from the baseline avatar
-            truth[name] = pseudo_gt_truth(subject, out / "runs" / name, models, plan, out, name)
+            truth[name] = pseudo_gt_truth(subject, lambda v, h=heldout_name: plan.run(out, h, v), models, plan, out, name)
     trips = [triplet_paths(corpus, config.baseline_frames)["heldout"][heldout.index(n)] for n in names]
     check = {c: condition_check(models[f"refiner_{c}"], trips, c) for c in ("tex+geo", "warp+geo")
              if f"refiner_{c}" in models}
@@ -339,18 +363,18 @@ def plan_of(config: AblationBenchConfig) -> AblationPlan:
     """The avatar runs' plan of ``config``."""
     return AblationPlan(iterations=config.iterations, seeds=config.seeds, start=config.augment_start,
                         refresh=config.augment_refresh, pool=config.augment_pool, detail_sigma=config.detail_sigma,
-                        mask=config.augment_mask, coverage=config.coverage, pose_noise=config.pose_noise)
+                        mask=config.augment_mask, coverage=config.coverage, pose_noise=config.pose_noise, reach=config.reach)
 
 
 def regime_subject(subject: Path, out: Path, plan: AblationPlan) -> Path:
     """The held-out subject as the plan's regime captures it: the corpus's own folder, or (coverage < 1 or pose
     noise) the same synthetic subject re-rendered with them in OUT/subjects (made once)."""
-    if not plan.regime:
+    if not plan.capture:
         return subject
     from trioman.runtime.formats import load_subject
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 
-    target = out / "subjects" / (subject.name + plan.regime)
+    target = out / "subjects" / (subject.name + plan.capture)
     if not (target / "subject.json").is_file():
         made = dict(load_subject(subject, check_images=False).meta["generator"])
         made.pop("tool"), made.pop("version")
@@ -402,14 +426,13 @@ def summarise(results: dict[str, dict]) -> dict:
     return {"mean": mean, "seed_spread_psnr": spread, "share_of_ceiling": share, "verdict": verdict}
 
 
-def _grid(subject: Path, out: Path, name: str, variants: list[str], frames: int = 3) -> Path:
-    """The same test frames across ``variants`` (seed 0): rows = frames, columns = GT + variants."""
+def _grid(out: Path, name: str, runs: list[tuple[str, Path]], frames: int = 3) -> Path:
+    """The same test frames across the (variant, seed-0 run) ``runs``: rows = frames, columns = GT + variants."""
     from trioman.runtime.image_io import write_png
     from trioman.runtime.preview import contact_sheet
     from trioman.toolkit.evaluate import load_run, render_frame
 
     images, labels = [], []
-    runs = [(v, out / "runs" / name / f"{v.replace('+', '_')}_s0") for v in variants]
     loaded = [(v, load_run(r)[0]) for v, r in runs]
     _, subj, _, _ = load_run(runs[0][1])
     idx = subj.indices("test")
@@ -426,10 +449,10 @@ def _grid(subject: Path, out: Path, name: str, variants: list[str], frames: int 
 
 
 @torch.no_grad()
-def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: AblationPlan, out: Path, name: str,
+def pseudo_gt_truth(subject: Path, run_of, models: dict[str, Path], plan: AblationPlan, out: Path, name: str,
                     draws: int = 12, seed: int = 7) -> dict:
     """Pseudo-GT against the truth, which a synthetic subject has: the same ``draws`` Generator candidates
-    (from training frames) made into pseudo-GT by the shared augmentation step (runtime.pseudo_gt) from the
+    (from training frames, at the plan's reach; ``run_of(variant)``: its seed-0 run) made into pseudo-GT by the shared augmentation step (runtime.pseudo_gt) from the
     seed-0 baseline avatar, one kind at a time (each Refiner in ``models``), against the subject's own mesh renderer at the draw (the
     candidate's pose change on the true pose, its camera). Writes pseudo_gt_<name>.png (rows: draws; columns:
     truth, render, aligned, each Refiner). -> {"frames": masked PSNR per kind, "coverage": mean share of body
@@ -460,7 +483,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     for p in rng.choice(len(train), size=draws):
         i = int(train[p])
         c = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]), np.asarray(subj.viewmat[i]),
-                   rng, 1, AugmentConfig().generator())[0]
+                   rng, 1, AugmentConfig(camera=plan.camera).generator())[0]
         src = _source(subj, int(p), i, bg)
         picked.append((c, src, truth_renderer.at_draw(i, c, src.K)))
     truth = np.stack([t[0] for _, _, t in picked])
@@ -473,7 +496,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     def render_with(model, K: np.ndarray):
         return lambda c: render_candidate(model, c, torch.from_numpy(K.astype(np.float32)), W, H, bg)
 
-    base = load_run(runs / "baseline_s0")[0]
+    base = load_run(run_of("baseline"))[0]
     kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None)]
     kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
               for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if f"refiner_{c}" in models]
@@ -509,7 +532,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
     write_png(out / f"pseudo_gt_{name}.png", contact_sheet(sheet, labels, cols=1 + len(columns)))
     avatars = {}
     for v, *_ in plan.variants:
-        run = runs / f"{v.replace('+', '_')}_s0"
+        run = run_of(v)
         if (run / "eval_test" / "summary.json").is_file():
             model = load_run(run)[0]
             x = np.stack([render_with(model, src.K)(c)[0] for c, src, _ in picked])
@@ -517,7 +540,7 @@ def pseudo_gt_truth(subject: Path, runs: Path, models: dict[str, Path], plan: Ab
             avatars[v] = {"psnr": psnr(x), "colour_bias": [float(b) for b in (x - truth)[inside].mean(0)]}
     found = {"draws": draws, "frames": frames, "coverage": coverage, "ms_per_draw": ms, "avatars": avatars}
     if "examiner" in models and "refiner_warp+geo" in models:
-        found["examiner"] = examiner_choices(subj, base, models, truth_renderer, aligner, draws, seed)
+        found["examiner"] = examiner_choices(subj, base, models, truth_renderer, aligner, draws, seed, plan.camera)
     return found
 
 
@@ -536,7 +559,8 @@ def _view_change(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @torch.no_grad()
-def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, aligner, draws: int, seed: int) -> dict:
+def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, aligner, draws: int, seed: int,
+                     camera: tuple[float, float, float] | None = None) -> dict:
     """What the Examiner keeps (the GRE row's step): for ``draws`` training frames, two Generator candidates each,
     refined by the warp+geo Refiner with the carried pixels kept; the Examiner's pick against the truth. -> {"agreement": share of pairs where the
     pick is the candidate closer to the truth, "psnr_chosen" / "psnr_other": mean masked PSNR vs the truth,
@@ -557,7 +581,7 @@ def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, alig
     for p in rng.choice(len(train), size=draws):
         i = int(train[p])
         cands = sample(subj.body.skeleton, np.asarray(subj.poses[i]), np.asarray(subj.trans[i]),
-                       np.asarray(subj.viewmat[i]), rng, 2, AugmentConfig().generator())
+                       np.asarray(subj.viewmat[i]), rng, 2, AugmentConfig(camera=camera).generator())
         src = _source(subj, int(p), i, bg)
         K = src.K
         made = make_pseudo_frames(cands, src, lambda c: render_candidate(avatar, c, torch.from_numpy(K.astype(np.float32)), W, H, bg),
@@ -650,6 +674,7 @@ def ablation_markdown(r: dict) -> str:
              f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
              f"Capture regime: {plan.get('coverage', 1.0):g} of a full turn in the training frames, pose noise "
              f"{plan.get('pose_noise', 0.0):g} deg" + (" (evaluated at the true test poses)" if plan.get("pose_noise") else "")
+             + (f"; the Generator's camera sigmas x{plan['reach']:g}" if plan.get("reach", 1.0) != 1.0 else "")
              + f"; pseudo frames masked by '{plan.get('mask', 'alpha')}'. "
              f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
              f"{plan['augmented_iterations']} steps; pseudo-GT from step {plan['start']:.0%} on, pool of {plan['pool']} "

@@ -103,6 +103,17 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     summary = json.loads((out / "runs" / name / "ceiling_s0" / "eval_test" / "summary.json").read_text())
     assert summary["poses"] == "true"  # with pose noise the avatars are scored at the true test poses
     assert "0.5 of a full turn" in (out / "ablation.md").read_text()
+    # the Generator's reach: augmented runs get their own folders, unaugmented ones are the capture regime's
+    assert main(argv + regime[:4] + ["--reach", "2", "--variants", "baseline,ceiling"]) == 0
+    r4 = json.loads((out / "ablation.json").read_text())
+    far = name + "-reach2"
+    assert r4["subjects"] == [far] and set(r4["results"][far]) == {"baseline", "ceiling"} and r4["plan"]["reach"] == 2
+    assert (out / "runs" / name / "baseline_s0").is_dir() and not (out / "runs" / far / "baseline_s0").exists()
+    camera = json.loads((out / "runs" / far / "ceiling_s0" / "config.json").read_text())["train"]["augment"]["camera"]
+    assert camera == pytest.approx([1.0, 0.3, 0.2])
+    assert far in r4["pseudo_gt_truth"] and "camera sigmas x2" in (out / "ablation.md").read_text()
+    assert main(argv + ["--reach", "0"]) == 1
+    assert "--reach: the Generator's camera sigmas" in capsys.readouterr().err
     assert main(argv + ["--variants", "baseline,magic"]) == 1
     assert "--variants: unknown ['magic']" in capsys.readouterr().err
 

@@ -27,7 +27,7 @@ FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "out", "size", "frames", "seed", "presets", "full_iterations", "eval_every", "avatar_run", "corpus", "subjects",
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
-    "detail_sigma", "coverage", "pose_noise", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
+    "detail_sigma", "coverage", "pose_noise", "reach", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
     "variants", "ablation_subjects")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
@@ -77,6 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pose-noise", type=float, default=None, metavar="DEG",
                         help="ablation: re-render the held-out subjects with this fitting noise on their stored poses "
                              "(evaluated at the true test poses; default 0)")
+    parser.add_argument("--reach", type=float, default=None, metavar="FACTOR",
+                        help="ablation: the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of "
+                             "their defaults (default 1)")
     parser.add_argument("--augment-start", type=float, default=None, help="ablation: warm-up share of an augmented run")
     parser.add_argument("--augment-pool", type=int, default=None, help="ablation: pseudo-GT frames per pool rebuild")
     parser.add_argument("--augment-refresh", type=int, default=None, help="ablation: steps between pool rebuilds")
