@@ -40,6 +40,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -335,7 +336,7 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
             run = plan.run(out, heldout_name, variant, seed)
             if not finished(run, _iterations(variant, plan)):
                 if report_only or (only is not None and variant not in only):
-                    missing.append(f"{name}/{run.name}")
+                    missing.append(f"{run.parent.name}/{run.name}")
                     continue
                 train(subject, run, _train_config(variant, seed, plan, models), resume=(run / "config.json").exists(),
                       progress=False, lpips=lpips)
@@ -449,7 +450,7 @@ def _grid(out: Path, name: str, runs: list[tuple[str, Path]], frames: int = 3) -
 
 
 @torch.no_grad()
-def pseudo_gt_truth(subject: Path, run_of, models: dict[str, Path], plan: AblationPlan, out: Path, name: str,
+def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[str, Path], plan: AblationPlan, out: Path, name: str,
                     draws: int = 12, seed: int = 7) -> dict:
     """Pseudo-GT against the truth, which a synthetic subject has: the same ``draws`` Generator candidates
     (from training frames, at the plan's reach; ``run_of(variant)``: its seed-0 run) made into pseudo-GT by the shared augmentation step (runtime.pseudo_gt) from the
