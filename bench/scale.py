@@ -59,7 +59,7 @@ def _measure(size: int, batch: int, steps: int, seed: int) -> dict:
     from trioman.toolkit.distributed import current, data_parallel
     from trioman.toolkit.model_training import REFINER_SIZES, FitConfig, SampleStream, refiner_batch
     from trioman.toolkit.refiner import RefinerConfig, create_refiner
-    from trioman.toolkit.refiner.train import train_step
+    from trioman.toolkit.refiner.loop import train_step
     from trioman.toolkit.triplets import TripletSet
 
     ranks = current()

@@ -397,16 +397,16 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
     import shutil
 
     from trioman.export.onnx_models import synthetic_frames
-    from trioman.toolkit.examiner import ExaminerTrainConfig, train_examiner
+    from trioman.toolkit.examiner import ExaminerTrainConfig, examiner_loop
     from trioman.toolkit.model_training import examiner_batch, refiner_batch
-    from trioman.toolkit.refiner import RefinerTrainConfig, train_refiner
+    from trioman.toolkit.refiner import RefinerTrainConfig, refiner_loop
 
     frames = synthetic_frames(batch, (MODEL_SIZE, MODEL_SIZE), seed=0)
     loops = {
         "Refiner": (RefinerTrainConfig(steps=iterations, checkpoint_every=1),
-                    lambda cfg, run: train_refiner(tiny_models()[0], lambda step: refiner_batch(frames), cfg, run)),
+                    lambda cfg, run: refiner_loop(tiny_models()[0], lambda step: refiner_batch(frames), cfg, run)),
         "Examiner": (ExaminerTrainConfig(steps=iterations, checkpoint_every=1),
-                     lambda cfg, run: train_examiner(tiny_models()[1], [examiner_batch(frames)], cfg, run)),
+                     lambda cfg, run: examiner_loop(tiny_models()[1], [examiner_batch(frames)], cfg, run)),
     }
     rows = []
     for loop, (default, fit) in loops.items():

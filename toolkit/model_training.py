@@ -20,8 +20,8 @@ import torch
 from trioman.runtime.image_io import atomic_write_text
 from trioman.toolkit.corpus import triplet_paths
 from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
-from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, pair_auroc, train_examiner
-from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, train_refiner
+from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, examiner_loop, pair_auroc
+from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, refiner_loop
 from trioman.toolkit.loops.checkpoint import latest_checkpoint
 from trioman.toolkit.triplets import TripletSet, Tuples
 
@@ -204,7 +204,7 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
     model = create_refiner(cfg, seed=fit.seed).to(torch_device(device, ranks))
     t = time.perf_counter() - _earlier_seconds(run, asdict(fit))
     train_cfg = RefinerTrainConfig(steps=fit.steps, lr=fit.lr, mixed_precision=mixed_precision, gradient_checkpointing=gradient_checkpointing)
-    result = train_refiner(model, lambda step: refiner_batch(stream(step)), train_cfg, run=run, lpips=lpips, progress=True)
+    result = refiner_loop(model, lambda step: refiner_batch(stream(step)), train_cfg, run=run, lpips=lpips, progress=True)
     info = {"model": "refiner", "conditions": conditions, "fit": asdict(fit), "config": cfg.to_dict(), "device": device,
             "distributed": ranks.record(fit.batch, fit.seed), "seconds": time.perf_counter() - t,
             "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,
@@ -251,13 +251,13 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
     t = time.perf_counter() - _earlier_seconds(run, record)
 
     def batches():
-        for step in itertools.count(_resume_step(run)):  # train_examiner resumes from the same checkpoint
+        for step in itertools.count(_resume_step(run)):  # examiner_loop resumes from the same checkpoint
             yield examiner_batch(stream(step))
 
     every = validate_every if validation_subjects else ExaminerTrainConfig.checkpoint_every
     train_cfg = ExaminerTrainConfig(steps=fit.steps, lr=fit.lr, seed=fit.seed, pairing=pairing, checkpoint_every=every,
                                     mixed_precision=mixed_precision)
-    result = train_examiner(model, batches(), train_cfg, run=run, validate=validate, progress=True)
+    result = examiner_loop(model, batches(), train_cfg, run=run, validate=validate, progress=True)
     info = {"model": "examiner", "name": name, "fit": record, "config": model.config.to_dict(), "device": device,
             "distributed": ranks.record(fit.batch, fit.seed), "seconds": time.perf_counter() - t,
             "final_loss": float(np.mean(result.losses[-50:])) if result.losses else None,

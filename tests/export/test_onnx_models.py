@@ -23,9 +23,9 @@ from trioman.cli import main  # noqa: E402
 from trioman.export import onnx_models as om  # noqa: E402
 from trioman.export.onnx_models import jobs  # noqa: E402
 from trioman.runtime.models import ExaminerModel, RefinerModel, load_model, read_metadata  # noqa: E402
-from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create_examiner, load_examiner, train_examiner  # noqa: E402
+from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create_examiner, examiner_loop, load_examiner  # noqa: E402
 from trioman.toolkit.model_training import examiner_batch, refiner_batch  # noqa: E402
-from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, train_refiner  # noqa: E402
+from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, refiner_loop  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
 
@@ -81,7 +81,7 @@ def corpus(tmp_path_factory):
     paths = [write_triplets(root / "a.npz", 1), write_triplets(root / "b.npz", 2)]
     data = TripletSet.load(paths)
     rng = np.random.default_rng(0)
-    train_refiner(create_refiner(REFINER_CFG, seed=0), lambda s: refiner_batch(data.sample(rng, 4, split="train")),
+    refiner_loop(create_refiner(REFINER_CFG, seed=0), lambda s: refiner_batch(data.sample(rng, 4, split="train")),
                   RefinerTrainConfig(steps=24, lr=2e-3), run=root / "refiner_run")
     torch.manual_seed(0)
 
@@ -89,7 +89,7 @@ def corpus(tmp_path_factory):
         while True:
             yield examiner_batch(data.sample(rng, 8, split="train"))
 
-    train_examiner(create_examiner(EXAMINER_CFG), batches(), ExaminerTrainConfig(steps=120, lr=1e-3), run=root / "examiner_run")
+    examiner_loop(create_examiner(EXAMINER_CFG), batches(), ExaminerTrainConfig(steps=120, lr=1e-3), run=root / "examiner_run")
     return {"triplets": paths, "data": data, "refiner_run": root / "refiner_run", "examiner_run": root / "examiner_run"}
 
 

@@ -2,6 +2,7 @@
 its training pairs, loss, training loop, inference choice and AUROC."""
 
 from trioman.toolkit.examiner.inference import BatchChoice, choose
+from trioman.toolkit.examiner.loop import ExaminerTrainConfig, ExaminerTrainResult, examiner_loop, load_examiner
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.metrics import auroc, pair_auroc
 from trioman.toolkit.examiner.model import (
@@ -14,7 +15,6 @@ from trioman.toolkit.examiner.model import (
     export_inputs,
 )
 from trioman.toolkit.examiner.pairs import ExaminerBatch, ExaminerPairs, sample_pairs
-from trioman.toolkit.examiner.train import ExaminerTrainConfig, ExaminerTrainResult, load_examiner, train_examiner
 
 __all__ = [
     "EXAMINER_CONFIGS",
@@ -30,10 +30,10 @@ __all__ = [
     "choose",
     "create_examiner",
     "examiner_config",
+    "examiner_loop",
     "examiner_loss",
     "export_inputs",
     "load_examiner",
     "pair_auroc",
     "sample_pairs",
-    "train_examiner",
 ]

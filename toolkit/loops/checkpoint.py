@@ -113,6 +113,6 @@ def latest_checkpoint(run: Path) -> Path | None:
 
 def model_checkpoint(run: Path) -> Path | None:
     """The checkpoint whose weights a run folder's model uses: run/selected.pt (the step chosen by
-    validation, ``train_examiner(validate=...)``) when present, else the latest checkpoint."""
+    validation, ``examiner_loop(validate=...)``) when present, else the latest checkpoint."""
     selected = Path(run) / SELECTED
     return selected if selected.is_file() else latest_checkpoint(run)

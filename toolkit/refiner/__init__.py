@@ -4,9 +4,9 @@ its backbone registry, loss, training loop and ONNX example inputs."""
 from trioman.toolkit.refiner.backbones import BackboneUnavailable, create_refiner, register_backbone, registered_backbones
 from trioman.toolkit.refiner.batch import RefinerBatch, check_batch, refiner_inputs, refiner_targets
 from trioman.toolkit.refiner.config import CONDITIONS, RefinerConfig
+from trioman.toolkit.refiner.loop import RefinerTrainConfig, RefinerTrainResult, load_refiner, refiner_loop, train_step
 from trioman.toolkit.refiner.loss import RefinerLossWeights, refiner_loss
 from trioman.toolkit.refiner.model import INPUT_NAMES, OUTPUT_NAME, Refiner, export_inputs
-from trioman.toolkit.refiner.train import RefinerTrainConfig, RefinerTrainResult, load_refiner, train_refiner, train_step
 
 __all__ = [
     "CONDITIONS",
@@ -24,10 +24,10 @@ __all__ = [
     "export_inputs",
     "load_refiner",
     "refiner_inputs",
+    "refiner_loop",
     "refiner_loss",
     "refiner_targets",
     "register_backbone",
     "registered_backbones",
-    "train_refiner",
     "train_step",
 ]

@@ -135,7 +135,7 @@ def load_pseudo_refiner(refiner: str | os.PathLike) -> TorchRefiner | OnnxRefine
 def load_pseudo_examiner(examiner: str | os.PathLike) -> PseudoExaminer:
     """The Examiner at ``examiner``: a ``train-examiner`` run folder, one of its checkpoints, or an ONNX file."""
     from trioman.runtime.formats import FormatError
-    from trioman.toolkit.examiner.train import load_examiner
+    from trioman.toolkit.examiner.loop import load_examiner
 
     path = Path(examiner)
     if not path.exists():

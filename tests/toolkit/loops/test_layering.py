@@ -7,7 +7,7 @@ from tests.test_imports import cycle, graph
 
 
 def subpackage(module: str) -> str:
-    """``trioman.toolkit.refiner.train`` -> ``trioman.toolkit.refiner``; a toolkit module is its own."""
+    """``trioman.toolkit.refiner.loop`` -> ``trioman.toolkit.refiner``; a toolkit module is its own."""
     return ".".join(module.split(".")[:3])
 
 

@@ -18,7 +18,7 @@ pytest.importorskip("diffusers", reason="the sd-turbo backbone needs the diffuse
 from tests.export.test_avatar import tiny_run  # noqa: E402,F401 (fixture)
 from tests.toolkit.test_model_training import corpus  # noqa: E402,F401 (fixture)
 from tests.toolkit.refiner.helpers import synthetic_batch  # noqa: E402
-from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, train_refiner  # noqa: E402
+from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, refiner_loop  # noqa: E402
 from trioman.toolkit.refiner.sd_turbo import PROMPT_FILE, SdTurboFolderError, SdTurboRefiner, write_tiny_folder  # noqa: E402
 from trioman.toolkit.loops.checkpoint import model_checkpoint  # noqa: E402
 
@@ -75,24 +75,24 @@ def test_encoder_frozen_and_skips_start_small(folder):
 def test_training_steps_lower_the_loss(folder):
     model = create_refiner(config(folder, conditions="tex"), seed=0)
     batch = synthetic_batch(0, batch=2, size=S)
-    result = train_refiner(model, lambda step: batch, RefinerTrainConfig(steps=4, lr=1e-3))
+    result = refiner_loop(model, lambda step: batch, RefinerTrainConfig(steps=4, lr=1e-3))
     assert result.skipped == 0 and result.losses[-1] < result.losses[0]
 
 
 def test_gradient_checkpointing_and_bf16_run_on_cpu(folder):
     batch = synthetic_batch(0, batch=2, size=S)
-    plain = train_refiner(create_refiner(config(folder), seed=0), lambda s: batch, RefinerTrainConfig(steps=1))
-    ckpt = train_refiner(create_refiner(config(folder), seed=0), lambda s: batch,
+    plain = refiner_loop(create_refiner(config(folder), seed=0), lambda s: batch, RefinerTrainConfig(steps=1))
+    ckpt = refiner_loop(create_refiner(config(folder), seed=0), lambda s: batch,
                          RefinerTrainConfig(steps=1, gradient_checkpointing=True))
     assert ckpt.losses == pytest.approx(plain.losses, abs=1e-5)
-    bf16 = train_refiner(create_refiner(config(folder), seed=0), lambda s: batch, RefinerTrainConfig(steps=1, mixed_precision="bf16"))
+    bf16 = refiner_loop(create_refiner(config(folder), seed=0), lambda s: batch, RefinerTrainConfig(steps=1, mixed_precision="bf16"))
     assert bf16.losses == pytest.approx(plain.losses, abs=0.05)
 
 
 def test_save_then_load(folder, tmp_path):
     model = create_refiner(config(folder), seed=0)
     batch = synthetic_batch(0, batch=2, size=S)
-    result = train_refiner(model, lambda step: batch, RefinerTrainConfig(steps=2, lr=1e-3), run=tmp_path)
+    result = refiner_loop(model, lambda step: batch, RefinerTrainConfig(steps=2, lr=1e-3), run=tmp_path)
     loaded = load_refiner(result.checkpoint)
     with torch.no_grad():
         assert torch.equal(loaded(batch.coarse, batch.reference, batch.normal), model(batch.coarse, batch.reference, batch.normal))

@@ -34,7 +34,7 @@ def subject(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory):
-    """Checkpoints of a tiny tex+geo Refiner and a tiny Examiner, in train_refiner/train_examiner's format."""
+    """Checkpoints of a tiny tex+geo Refiner and a tiny Examiner, in refiner_loop/examiner_loop's format."""
     d = tmp_path_factory.mktemp("models")
     refiner = create_refiner(RefinerConfig(image_size=SIZE, vae_widths=(8, 8, 8), unet_widths=(8, 16, 16), attention_heads=2,
                                            conditions="tex+geo"), seed=0)

@@ -16,9 +16,9 @@ from trioman.toolkit.refiner import (
     create_refiner,
     load_refiner,
     refiner_inputs,
+    refiner_loop,
     refiner_loss,
     refiner_targets,
-    train_refiner,
 )
 from trioman.toolkit.loops.checkpoint import latest_checkpoint
 
@@ -69,7 +69,7 @@ def test_batch_to_inputs_and_targets():
 
 def test_training_lowers_the_loss():
     model = create_refiner(tiny_config())
-    result = train_refiner(model, synthetic_batch, RefinerTrainConfig(steps=30, lr=3e-3))
+    result = refiner_loop(model, synthetic_batch, RefinerTrainConfig(steps=30, lr=3e-3))
     first, last = sum(result.losses[:5]) / 5, sum(result.losses[-5:]) / 5
     assert result.step == 30 and not model.training
     assert last < 0.9 * first, result.losses
@@ -79,12 +79,12 @@ def test_checkpoint_round_trip_resume_and_determinism(tmp_path):
     config = RefinerTrainConfig(steps=3, lr=1e-3, checkpoint_every=2, keep_checkpoints=1)
     batches = lambda step: synthetic_batch(step, batch=2)  # noqa: E731
     straight = create_refiner(tiny_config(conditions="tex"), seed=7)
-    reference = train_refiner(straight, batches, config)
+    reference = refiner_loop(straight, batches, config)
 
     model = create_refiner(tiny_config(conditions="tex"), seed=7)
-    first = train_refiner(model, batches, dataclasses.replace(config, steps=2), run=tmp_path)
+    first = refiner_loop(model, batches, dataclasses.replace(config, steps=2), run=tmp_path)
     assert first.checkpoint == latest_checkpoint(tmp_path) and first.step == 2
-    resumed = train_refiner(create_refiner(tiny_config(conditions="tex"), seed=0), batches, config, run=tmp_path)
+    resumed = refiner_loop(create_refiner(tiny_config(conditions="tex"), seed=0), batches, config, run=tmp_path)
     assert resumed.step == 3 and first.losses + resumed.losses == pytest.approx(reference.losses, abs=1e-6)
 
     state = torch.load(resumed.checkpoint, weights_only=True)
@@ -95,7 +95,7 @@ def test_checkpoint_round_trip_resume_and_determinism(tmp_path):
         assert torch.allclose(loaded(*x), straight.eval()(*x), atol=1e-5)
 
     with pytest.raises(ValueError, match="differs"):
-        train_refiner(create_refiner(tiny_config()), batches, config, run=tmp_path)
+        refiner_loop(create_refiner(tiny_config()), batches, config, run=tmp_path)
 
 
 def _poison_output(model, steps: set[int], counter: list[int]):
@@ -112,7 +112,7 @@ def test_non_finite_steps_are_skipped_and_counted(tmp_path):
     model = create_refiner(tiny_config(), seed=0)
     _poison_output(model, {2, 3}, [0])
     config = RefinerTrainConfig(steps=6, lr=1e-3, checkpoint_every=3)
-    result = train_refiner(model, synthetic_batch, config, run=tmp_path)
+    result = refiner_loop(model, synthetic_batch, config, run=tmp_path)
     assert result.step == 6 and result.skipped == 2 and len(result.losses) == 4
     assert all(torch.isfinite(p).all() for p in model.parameters())
     assert torch.load(result.checkpoint, weights_only=True)["skipped"] == 2
@@ -123,7 +123,7 @@ def test_repeated_non_finite_steps_stop_and_keep_the_last_good_checkpoint(tmp_pa
     _poison_output(model, set(range(2, 100)), [0])
     config = RefinerTrainConfig(steps=10, lr=1e-3, checkpoint_every=2, max_skipped=3)
     with pytest.raises(FloatingPointError, match="refiner: 3 consecutive steps .* the run stops.*Lower the learning rate"):
-        train_refiner(model, synthetic_batch, config, run=tmp_path)
+        refiner_loop(model, synthetic_batch, config, run=tmp_path)
     assert latest_checkpoint(tmp_path).name == "ckpt_0000004.pt"  # steps 3, 4 skipped (weights unchanged, saved)
 
 
@@ -137,5 +137,5 @@ def test_non_finite_weights_are_never_saved(tmp_path):
         return synthetic_batch(step)
 
     with pytest.raises(FloatingPointError, match="weights at step 4 are not finite.*ckpt_0000002.pt"):
-        train_refiner(model, batches, RefinerTrainConfig(steps=6, lr=1e-3, checkpoint_every=2), run=tmp_path)
+        refiner_loop(model, batches, RefinerTrainConfig(steps=6, lr=1e-3, checkpoint_every=2), run=tmp_path)
     assert latest_checkpoint(tmp_path).name == "ckpt_0000002.pt"

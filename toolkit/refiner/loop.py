@@ -1,5 +1,5 @@
-"""Train the Refiner from scratch: Adam on ``refiner_loss``, in a ``ModelRun`` (toolkit/loops/model_run.py:
-resume, the non-finite guard, progress, atomic checkpoints).
+"""The Refiner's training loop over batches, from scratch: Adam on ``refiner_loss``, in a ``ModelRun``
+(toolkit/loops/model_run.py: resume, the non-finite guard, progress, atomic checkpoints).
 
 Determinism: the loop draws no random numbers. The batch of step s is ``batches(s)`` (so a resumed
 run sees exactly the batches it would have seen), and the initial weights come from
@@ -109,7 +109,7 @@ def train_step(
     return {"total": float(total.detach()), **{k: float(v) for k, v in terms.items()}}
 
 
-def train_refiner(
+def refiner_loop(
     model: nn.Module,
     batches: Callable[[int], RefinerBatch],
     config: RefinerTrainConfig = RefinerTrainConfig(),
@@ -151,7 +151,7 @@ def train_refiner(
 
 
 def load_refiner(path: str | os.PathLike, exportable: bool = False) -> nn.Module:
-    """A Refiner rebuilt from a checkpoint written by ``train_refiner`` (eval mode)."""
+    """A Refiner rebuilt from a checkpoint written by ``refiner_loop`` (eval mode)."""
     state = load_checkpoint(path)
     model = create_refiner(RefinerConfig.from_dict(state["config"]), exportable=exportable, seed=None)
     model.load_state_dict(state["model"])

@@ -1,6 +1,6 @@
-"""Train the Examiner from scratch: Adam on the BCE of seeded sampled pairs, with optional model selection on
-validation data (the weights of the best validated step are kept), in a ``ModelRun`` (toolkit/loops/model_run.py:
-resume, the non-finite guard, progress, atomic checkpoints)."""
+"""The Examiner's training loop over batches, from scratch: Adam on the BCE of seeded sampled pairs, with optional
+model selection on validation data (the weights of the best validated step are kept), in a ``ModelRun``
+(toolkit/loops/model_run.py: resume, the non-finite guard, progress, atomic checkpoints)."""
 
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ def _batches(data: Iterable[ExaminerBatch]) -> Iterator[ExaminerBatch]:
             raise ValueError("data: yielded no batch")
 
 
-def train_examiner(
+def examiner_loop(
     model: Examiner,
     data: Iterable[ExaminerBatch],
     config: ExaminerTrainConfig = ExaminerTrainConfig(),
@@ -192,7 +192,7 @@ def _save_selected(run: Path, step: int, weights: dict, model: Examiner, config:
 
 
 def load_examiner(path: str | os.PathLike, exportable: bool = False) -> Examiner:
-    """An Examiner rebuilt from a checkpoint written by ``train_examiner`` (eval mode)."""
+    """An Examiner rebuilt from a checkpoint written by ``examiner_loop`` (eval mode)."""
     state = load_checkpoint(path)
     model = Examiner(ExaminerConfig.from_dict(state["config"]), exportable=exportable)
     model.load_state_dict(state["model"])

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from tests.toolkit.examiner.helpers import TINY, synthetic_batch
-from trioman.toolkit.examiner import ExaminerTrainConfig, auroc, create_examiner, load_examiner, train_examiner
+from trioman.toolkit.examiner import ExaminerTrainConfig, auroc, create_examiner, examiner_loop, load_examiner
 from trioman.toolkit.loops.checkpoint import list_checkpoints
 
 
@@ -17,7 +17,7 @@ def trained(tmp_path_factory):
     g = torch.Generator().manual_seed(1)
     data = [synthetic_batch(16, TINY.img_size, g) for _ in range(20)]
     model = create_examiner(TINY)
-    result = train_examiner(model, data, ExaminerTrainConfig(steps=300, lr=1e-3, checkpoint_every=100), run=run)
+    result = examiner_loop(model, data, ExaminerTrainConfig(steps=300, lr=1e-3, checkpoint_every=100), run=run)
     return model, result, run
 
 
@@ -53,20 +53,20 @@ def test_resume_continues_from_the_checkpoint_and_is_seeded(tmp_path):
         return create_examiner(TINY)
 
     straight = fresh()
-    full = train_examiner(straight, data, ExaminerTrainConfig(steps=6, seed=2))
+    full = examiner_loop(straight, data, ExaminerTrainConfig(steps=6, seed=2))
     again = fresh()
-    train_examiner(again, data, ExaminerTrainConfig(steps=6, seed=2))
+    examiner_loop(again, data, ExaminerTrainConfig(steps=6, seed=2))
     for key, value in straight.state_dict().items():
         torch.testing.assert_close(again.state_dict()[key], value, rtol=0, atol=0)
 
     # 3 steps and a checkpoint, then a fresh start resumes for the other 3; with 3 batches the
     # restarted data lines up with the straight run, so the losses match it
-    train_examiner(fresh(), data, ExaminerTrainConfig(steps=3, seed=2, checkpoint_every=3), run=tmp_path)
-    second = train_examiner(create_examiner(TINY), data, ExaminerTrainConfig(steps=6, seed=2, checkpoint_every=3), run=tmp_path)
+    examiner_loop(fresh(), data, ExaminerTrainConfig(steps=3, seed=2, checkpoint_every=3), run=tmp_path)
+    second = examiner_loop(create_examiner(TINY), data, ExaminerTrainConfig(steps=6, seed=2, checkpoint_every=3), run=tmp_path)
     assert second.step == 6
     assert second.losses == pytest.approx(full.losses[3:], rel=1e-5)
     with pytest.raises(ValueError, match=r"the run's Examiner differs from this one \(head_hidden: \d+ -> 8\); "):
-        train_examiner(create_examiner(TINY, head_hidden=8), data, ExaminerTrainConfig(steps=6), run=tmp_path)
+        examiner_loop(create_examiner(TINY, head_hidden=8), data, ExaminerTrainConfig(steps=6), run=tmp_path)
 
 
 def test_bad_train_config_and_empty_data():
@@ -75,7 +75,7 @@ def test_bad_train_config_and_empty_data():
     with pytest.raises(ValueError, match="lr: must be > 0"):
         ExaminerTrainConfig(lr=0.0)
     with pytest.raises(ValueError, match="data: yielded no batch"):
-        train_examiner(create_examiner(TINY), [], ExaminerTrainConfig(steps=1))
+        examiner_loop(create_examiner(TINY), [], ExaminerTrainConfig(steps=1))
 
 
 def test_validation_keeps_the_first_best_step_and_survives_a_resume(tmp_path):
@@ -93,11 +93,11 @@ def test_validation_keeps_the_first_best_step_and_survives_a_resume(tmp_path):
 
     cfg = ExaminerTrainConfig(steps=8, seed=2, checkpoint_every=2)
     model = fresh()
-    result = train_examiner(model, data, cfg, run=tmp_path / "a", validate=lambda m: next(values))
+    result = examiner_loop(model, data, cfg, run=tmp_path / "a", validate=lambda m: next(values))
     assert result.selected_step == 4 and result.validation == {2: 0.6, 4: 0.9, 6: 0.7, 8: 0.9}
     assert result.selected == tmp_path / "a" / "selected.pt" == model_checkpoint(tmp_path / "a")
     at_four = fresh()
-    train_examiner(at_four, data, ExaminerTrainConfig(steps=4, seed=2))  # validation changes no training step
+    examiner_loop(at_four, data, ExaminerTrainConfig(steps=4, seed=2))  # validation changes no training step
     for key, value in at_four.state_dict().items():
         torch.testing.assert_close(model.state_dict()[key], value, rtol=0, atol=0)
         torch.testing.assert_close(load_checkpoint(result.selected)["model"][key], value, rtol=0, atol=0)
@@ -105,15 +105,15 @@ def test_validation_keeps_the_first_best_step_and_survives_a_resume(tmp_path):
 
     # stopped after step 6, resumed to 8: same record, same selection
     values = iter([0.6, 0.9, 0.7, 0.9])
-    train_examiner(fresh(), data, ExaminerTrainConfig(steps=6, seed=2, checkpoint_every=2), run=tmp_path / "b",
+    examiner_loop(fresh(), data, ExaminerTrainConfig(steps=6, seed=2, checkpoint_every=2), run=tmp_path / "b",
                    validate=lambda m: next(values))
     resumed = fresh()
-    again = train_examiner(resumed, data, cfg, run=tmp_path / "b", validate=lambda m: next(values))
+    again = examiner_loop(resumed, data, cfg, run=tmp_path / "b", validate=lambda m: next(values))
     assert again.selected_step == 4 and again.validation == result.validation
     for key, value in model.state_dict().items():
         torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)
     with pytest.raises(ValueError, match="validate: returned NaN"):
-        train_examiner(fresh(), data, ExaminerTrainConfig(steps=2, checkpoint_every=2), validate=lambda m: float("nan"))
+        examiner_loop(fresh(), data, ExaminerTrainConfig(steps=2, checkpoint_every=2), validate=lambda m: float("nan"))
 
 
 def test_non_finite_gradients_are_skipped_and_repeated_ones_stop(tmp_path):
@@ -129,12 +129,12 @@ def test_non_finite_gradients_are_skipped_and_repeated_ones_stop(tmp_path):
         return grad * float("nan") if bad is None or calls[0] - 1 in bad else grad
 
     next(model.parameters()).register_hook(poison)
-    result = train_examiner(model, data, ExaminerTrainConfig(steps=5, lr=1e-3, checkpoint_every=5), run=tmp_path)
+    result = examiner_loop(model, data, ExaminerTrainConfig(steps=5, lr=1e-3, checkpoint_every=5), run=tmp_path)
     assert result.skipped == 2 and len(result.losses) == 3 and result.step == 5
     same = [all(torch.equal(a, b) for a, b in zip(seen[i], seen[i + 1])) for i in range(4)]
     assert same == [False, True, True, False]  # the skipped steps 1 and 2 left the weights as they were
     assert torch.load(result.checkpoint, weights_only=True)["skipped"] == 2
     bad = None
     with pytest.raises(FloatingPointError, match="examiner: 2 consecutive steps"):
-        train_examiner(model, data, ExaminerTrainConfig(steps=9, lr=1e-3, checkpoint_every=5, max_skipped=2), run=tmp_path)
+        examiner_loop(model, data, ExaminerTrainConfig(steps=9, lr=1e-3, checkpoint_every=5, max_skipped=2), run=tmp_path)
     assert [p.name for p in list_checkpoints(tmp_path)] == ["ckpt_0000005.pt"]
