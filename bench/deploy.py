@@ -15,7 +15,7 @@ import torch
 from trioman.bench.common import best_time, check_int, check_path
 from trioman.bench.render import avatar_scene, scene_args
 from trioman.runtime.metrics import psnr
-from trioman.runtime.render._reference import rasterize_reference
+from trioman.runtime.render.reference import rasterize_reference
 
 OPT_LEVELS = ("disable", "basic", "extended", "all")
 

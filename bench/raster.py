@@ -1,6 +1,6 @@
 """Rasterizer timings for ``trioman bench train``: the tile-binned rasterizer against a dense torch
 implementation (every visible Gaussian at every pixel) and the float64 brute-force oracle
-(:mod:`trioman.runtime.render._reference`), measured side by side on the default avatar in one run."""
+(:mod:`trioman.runtime.render.reference`), measured side by side on the default avatar in one run."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import torch
 from torch.utils.checkpoint import checkpoint
 
 from trioman.bench.common import mean_time
-from trioman.runtime.render._reference import rasterize_reference
 from trioman.runtime.render.projection import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
+from trioman.runtime.render.reference import rasterize_reference
 from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.render.projection import project_gaussians

@@ -16,7 +16,7 @@ import torch
 
 from trioman.bench.common import best_time, check_int, check_path, machine, peak_rss_mib
 from trioman.runtime.render import rasterize as rasterize_numpy
-from trioman.runtime.render._reference import rasterize_reference
+from trioman.runtime.render.reference import rasterize_reference
 from trioman.toolkit.render import rasterize as rasterize_torch
 
 KEYS = ("means", "quats", "scales", "opacities", "colors")
@@ -199,7 +199,7 @@ def render_markdown(r: dict) -> str:
     lines.append("")
     if "oracle" in r:
         o = r["oracle"]
-        lines += [f"Brute-force oracle (trioman.runtime.render._reference, float64, every Gaussian at every pixel), "
+        lines += [f"Brute-force oracle (trioman.runtime.render.reference, float64, every Gaussian at every pixel), "
                   f"one call at {o['size']}x{o['size']}: {o['oracle_s']:.1f} s against {1e3 * o['numpy_s']:.1f} ms for numpy "
                   f"({o['oracle_s'] / o['numpy_s']:.0f}x).", ""]
     return "\n".join(lines)

@@ -61,7 +61,7 @@ def renderer_rows(seeds: int = 2) -> list[dict]:
     import torch
 
     from trioman.runtime.render import rasterize as rasterize_numpy
-    from trioman.runtime.render._reference import rasterize_reference
+    from trioman.runtime.render.reference import rasterize_reference
     from trioman.toolkit.render import rasterize as rasterize_torch
 
     rows = []
@@ -424,7 +424,7 @@ def bench_stability(config: StabilityBenchConfig) -> dict:
     stayed finite.
 
     - Renderers: the numpy runtime renderer and the torch rasterizer (float32) against the float64 oracle
-      (trioman.runtime.render._reference) on extreme scenes: scales 1e-6..1e2 m with anisotropy 1e6, huge
+      (trioman.runtime.render.reference) on extreme scenes: scales 1e-6..1e2 m with anisotropy 1e6, huge
       faint Gaussians and needles from 5 cm in front of the camera (``bench.scenes.extreme_scene``), half the
       Gaussians behind the camera, opacities at 1/255 and at 1, and a scene 1e4 times larger seen from 1e4
       times farther. Error: max abs difference of RGB and alpha over the image.

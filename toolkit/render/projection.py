@@ -33,7 +33,7 @@ class Projection(NamedTuple):
     visible: torch.Tensor  # [N] bool
 
 
-class _Projected(NamedTuple):
+class Projected(NamedTuple):
     """The rasterizer's view: float64 values of the M visible Gaussians only (autograd attached)."""
 
     ids: torch.Tensor  # [M] int64 indices into the N inputs
@@ -105,8 +105,8 @@ def take_rows(x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
     return x if ids.numel() == x.shape[0] else x[ids]
 
 
-def _project(means, quats, scales, opacities, viewmat, K, width: int, height: int,
-             near_plane: float = 0.01, far_plane: float = 1e10, eps2d: float = EPS2D) -> _Projected:
+def project(means, quats, scales, opacities, viewmat, K, width: int, height: int,
+            near_plane: float = 0.01, far_plane: float = 1e10, eps2d: float = EPS2D) -> Projected:
     """Float64 projection of the visible Gaussians (docs/design.md, "How the renderers compute it").
     ``opacities`` None: extent 3.33, no opacity cull (the rule of gsplat's pure-torch reference)."""
     f64 = torch.float64
@@ -154,8 +154,8 @@ def _project(means, quats, scales, opacities, viewmat, K, width: int, height: in
         ok &= (m2[:, 0] + radii[:, 0] > 0) & (m2[:, 0] - radii[:, 0] < width)
         ok &= (m2[:, 1] + radii[:, 1] > 0) & (m2[:, 1] - radii[:, 1] < height)
         sel = torch.nonzero(ok).squeeze(1)
-    return _Projected(ids=take_rows(ids, sel), means2d=take_rows(mean2d, sel), chol=take_rows(chol, sel),
-                      conics=take_rows(conics, sel), depths=take_rows(tz, sel), radii=take_rows(radii, sel), z_all=z_all)
+    return Projected(ids=take_rows(ids, sel), means2d=take_rows(mean2d, sel), chol=take_rows(chol, sel),
+                     conics=take_rows(conics, sel), depths=take_rows(tz, sel), radii=take_rows(radii, sel), z_all=z_all)
 
 
 def project_gaussians(
@@ -178,7 +178,7 @@ def project_gaussians(
     """
     n, width, height = check_inputs(means, quats, scales, opacities, None, viewmat, K, width, height,
                                     near_plane=near_plane, far_plane=far_plane)
-    p = _project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
+    p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
     dt = means.dtype
     means2d = means.new_zeros(n, 2, dtype=torch.float64).index_copy(0, p.ids, p.means2d)
     conics = means.new_zeros(n, 3, dtype=torch.float64).index_copy(0, p.ids, p.conics)

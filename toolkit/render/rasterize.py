@@ -19,8 +19,8 @@ from trioman.toolkit.render.projection import (
     EPS2D,
     MAX_ALPHA,
     TRANSMITTANCE_THRESHOLD,
-    _project,
     check_inputs,
+    project,
     take_rows,
 )
 from trioman.toolkit.render.tiles import bin_gaussians
@@ -339,7 +339,7 @@ def rasterize(
         return _rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height, background,
                                  near_plane, far_plane)
     with stage("projection"):
-        p = _project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
+        p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
         if p.ids.numel() == 0:
             return nothing_visible()
         f64 = torch.float64

@@ -1,4 +1,4 @@
-"""The numpy splat renderer against the brute-force oracle (trioman.runtime.render._reference)."""
+"""The numpy splat renderer against the brute-force oracle (trioman.runtime.render.reference)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from tests.conftest import run_python
 from trioman.bench.scenes import extreme_scene, orbit_viewmat, random_scene
 from trioman.runtime.render import RenderOutput, rasterize
-from trioman.runtime.render._reference import rasterize_reference
+from trioman.runtime.render.reference import rasterize_reference
 
 TOL = 1e-5
 KEYS = ("means", "quats", "scales", "opacities", "colors", "viewmat", "K")

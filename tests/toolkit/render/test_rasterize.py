@@ -1,4 +1,4 @@
-"""The torch tile rasterizer against the brute-force oracle (runtime.render._reference), finite differences and gsplat."""
+"""The torch tile rasterizer against the brute-force oracle (runtime.render.reference), finite differences and gsplat."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from trioman.runtime.render._reference import project_reference, rasterize_reference  # noqa: E402
+from trioman.runtime.render.reference import project_reference, rasterize_reference  # noqa: E402
 from trioman.bench.scenes import extreme_scene, orbit_viewmat, random_scene  # noqa: E402
 from trioman.toolkit.render import RenderOutput, project_gaussians, rasterize  # noqa: E402
 

@@ -1,7 +1,7 @@
 """Brute-force Gaussian splatting oracle (numpy, float64): every Gaussian at every pixel, written plainly.
 
-Private: the reference the renderers are tested and benchmarked against (docs/design.md, "Renderer
-semantics", steps 1-6, followed literally), not a renderer to use. It shares the constants of
+The oracle the renderers are tested and benchmarked against (docs/design.md, "Renderer semantics", steps
+1-6, followed literally), not a renderer to use. It shares the constants of
 :mod:`.projection` but none of its arithmetic (no factored covariance, no Cholesky conic, no tiles, its
 own quaternion conversion), so an error in either shows as a disagreement.
 """
