@@ -26,8 +26,10 @@ __all__ = ["KINDS", "MASKS", "STAGES", "PseudoConfig", "Source", "PseudoFrames",
 
 # coarse: the avatar's render; aligned: the render with real pixels carried through the body mesh where
 # known; refined / examined: the Refiner's output (examined: the Examiner's pick); truth: the subject's own
-# renderer at the draw (synthetic subjects: the ceiling a perfect Refiner would reach).
-KINDS = ("coarse", "aligned", "refined", "examined", "truth")
+# renderer at the draw (synthetic subjects: the ceiling a perfect Refiner would reach); truth_seen: the truth
+# only where a training frame saw the surface (where real pixels were carried), ``unknown_weight`` elsewhere on
+# the body (the ceiling of pseudo-GT made from what the capture holds, with nothing invented).
+KINDS = ("coarse", "aligned", "refined", "examined", "truth", "truth_seen")
 # carried: the body mesh's coverage plus the source mask carried beyond it (runtime/aligned.py);
 # alpha: the render's own alpha (the paper's; teaches whatever the avatar renders off the body).
 MASKS = ("carried", "alpha")
@@ -49,7 +51,7 @@ class ExaminerLike(Protocol):
 class PseudoConfig:
     kind: str = "coarse"  # one of KINDS
     mask: str = "carried"  # one of MASKS
-    unknown_weight: float = 0.0  # kind "aligned": loss weight of body pixels that no real pixel reached
+    unknown_weight: float = 0.0  # kinds "aligned", "truth_seen": loss weight of body pixels that no real pixel reached
     detail_sigma: float = 0.0  # > 0: keep only the Refiner's detail (runtime.generator.keep_detail)
     threshold: float | None = None  # examined: drop the best candidate when its score is below
     keep_carried: bool = False  # refined / examined: carried real pixels stay, the Refiner's output only elsewhere
@@ -75,11 +77,16 @@ class PseudoConfig:
     def refined(self) -> bool:
         return self.kind in ("refined", "examined")
 
+    @property
+    def from_truth(self) -> bool:
+        """Whether the pseudo-GT is the subject's own renderer at the draw (synthetic subjects only)."""
+        return self.kind in ("truth", "truth_seen")
+
 
 def needs_aligner(cfg: PseudoConfig, refiner_conditions: str | None = None) -> bool:
-    """Whether the step needs the aligned reference: kind aligned, the carried mask (truth brings its own),
-    carried pixels kept, or a Refiner conditioned on it."""
-    return (cfg.kind == "aligned" or (cfg.mask == "carried" and cfg.kind != "truth") or cfg.keep_carried
+    """Whether the step needs the aligned reference: kinds aligned and truth_seen, the carried mask (the truth
+    brings its own), carried pixels kept, or a Refiner conditioned on it."""
+    return (cfg.kind in ("aligned", "truth_seen") or (cfg.mask == "carried" and not cfg.from_truth) or cfg.keep_carried
             or (cfg.refined and refiner_conditions in ALIGNED_CONDITIONS))
 
 
@@ -128,14 +135,14 @@ def make_pseudo_frames(
     """Pseudo-GT frames of ``candidates`` (module doc).
 
     render(c) -> (rgb [H, W, 3] over the background, alpha [H, W]); truth(c, K) -> (rgb [H, W, 3] on black,
-    mask [H, W]) (kind "truth"). Kinds refined / examined need ``refiner`` (and ``body`` for its geometry
+    mask [H, W]) (kinds "truth", "truth_seen"). Kinds refined / examined need ``refiner`` (and ``body`` for its geometry
     condition), examined with more than one candidate or a threshold ``examiner``; ``aligner`` whenever
     ``needs_aligner``.
     """
     if cfg.refined and refiner is None:
         raise ValueError(f"refiner: kind {cfg.kind!r} needs a Refiner")
-    if cfg.kind == "truth" and truth is None:
-        raise ValueError("truth: kind 'truth' needs the subject's own renderer (synthetic subjects only)")
+    if cfg.from_truth and truth is None:
+        raise ValueError(f"truth: kind {cfg.kind!r} needs the subject's own renderer (synthetic subjects only)")
     conditions = refiner.conditions if cfg.refined else None
     align = needs_aligner(cfg, conditions)
     if align and aligner is None:
@@ -185,18 +192,17 @@ def make_pseudo_frames(
         t = _tick(seconds, "examine", t)
     elif cfg.kind == "examined":
         kept = [0]
-    if cfg.kind == "truth":
+    if cfg.from_truth:
         pairs = [truth(c, K) for c in candidates]
         masks = np.stack([np.asarray(m, np.float32) for _, m in pairs])
         images = np.stack([np.asarray(r, np.float32) for r, _ in pairs]) + (1.0 - masks)[..., None] * bg
-        weights = np.ones_like(masks)
     else:
         masks = np.stack([a.silhouette for a in aligned]) if cfg.mask == "carried" else alpha
         images = content * masks[..., None] + (1.0 - masks)[..., None] * bg
-        weights = np.ones_like(masks)
-        if cfg.kind == "aligned":
-            for k, a in enumerate(aligned):
-                weights[k][a.body & ~a.valid] = cfg.unknown_weight
+    weights = np.ones_like(masks)
+    if cfg.kind in ("aligned", "truth_seen"):
+        for k, a in enumerate(aligned):
+            weights[k][a.body & ~a.valid] = cfg.unknown_weight
     coverage = [a.coverage for a in aligned if a is not None]
     return PseudoFrames(np.clip(images, 0.0, 1.0).astype(np.float32), masks.astype(np.float32), weights.astype(np.float32),
                         kept, chosen, scores, coverage)

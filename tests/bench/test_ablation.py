@@ -10,7 +10,7 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.ablation import LABELS, LEVERS, VARIANTS, AblationPlan, summarise  # noqa: E402
+from trioman.bench.ablation import LABELS, LEVERS, VARIANTS, AblationPlan, ablation_markdown, summarise  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
 
@@ -49,7 +49,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert json.loads((out / "runs" / "s02" / "GRE_s0" / "config.json").read_text())["train"]["augment"]["keep_carried"]
     for variant, mode in (("G", "coarse"), ("aligned", "aligned"), ("GR_tex", "refined"), ("GR_warp+geo", "refined"),
                           ("GRk_warp+geo", "refined"), ("GRE", "examined"),
-                          ("GRd_tex+geo", "refined"), ("ceiling", "truth")):
+                          ("GRd_tex+geo", "refined"), ("ceiling_seen", "truth_seen"), ("ceiling", "truth")):
         a = res[variant]["0"]["augment"]
         assert a["mode"] == mode and a["entries"] > 0 and a["kept"] <= a["entries"], variant  # entries made when drawn
         assert (a["kept"] > 0) == (a["pseudo_steps"] > 0), variant
@@ -62,7 +62,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     md = (out / "ablation.md").read_text()
     # the report's numbers are the summary's
     mean = r["summary"]["mean"]
-    for v in ("baseline", "ceiling", "aligned"):
+    for v in ("baseline", "ceiling", "ceiling_seen", "aligned"):
         assert f"| {LABELS[v]} | {mean[v]['psnr']:.2f} |" in md, v
     assert all(np.isfinite(mean[v]["psnr"]) for v in mean)
     for text in ("Table 1", "Table 2", "+ Generator & Refiner (aligned ref.&geo., carried pixels kept) & Examiner", "equal steps (control)", "paper 00028",
@@ -159,6 +159,13 @@ def test_summary_verdicts_follow_the_numbers():
     v = s["verdict"]
     assert v["ceiling_gain_db"] == pytest.approx(2.0) and v["ceiling_gain_at_least_1db"] and not v["full_recovers_85_percent"]
     assert v["unmasked_at_least_baseline"]["G"] and v["unmasked_at_least_baseline"]["ceiling"]
+    assert "full_share_of_seen_ceiling" not in v  # no seen-surface ceiling run
+    res["a"]["ceiling_seen"] = runs(21.7)
+    v = summarise(res)["verdict"]
+    assert v["seen_share_of_ceiling"] == pytest.approx(0.8) and v["full_share_of_seen_ceiling"] == pytest.approx(1.3 / 1.6)
+    assert "of that seen-surface ceiling's gain" in ablation_markdown(
+        {"plan": {**AblationPlan().__dict__, "augmented_iterations": 10}, "subjects": ["a"], "corpus": "c", "lpips": False,
+         "summary": summarise(res), "results": {}, "condition_check": {}, "pseudo_gt_truth": {}, "models": {}, "wall_seconds": 1.0})
     res["a"]["GR_warp+geo"] = runs(21.2)
     assert summarise(res)["verdict"]["warp_order_holds"]
     res["a"]["GR_warp+geo"] = runs(21.5)  # above the full system

@@ -76,6 +76,20 @@ def test_truth_takes_the_subjects_own_renderer():
     np.testing.assert_array_equal(made.masks[0], mask)
 
 
+def test_truth_seen_supervises_the_truth_only_where_real_pixels_were_carried():
+    cands = draws(2, seed=3)
+    made = make_pseudo_frames(cands, source(), junk_render, PseudoConfig("truth_seen", unknown_weight=0.25),
+                              aligner=aligner(), truth=lambda c, K_: paint(c.pose, c.trans, c.viewmat))
+    for k, c in enumerate(cands):
+        rgb, mask = paint(c.pose, c.trans, c.viewmat)
+        np.testing.assert_allclose(made.images[k], rgb + (1 - mask)[..., None] * BG, atol=1e-6)  # the truth everywhere
+        a = aligner().align(0, c.pose, c.trans, c.viewmat, K, junk_render(c)[0])
+        unseen = a.body & ~a.valid
+        assert unseen.any() and a.valid.any()  # the draws turn the box: part of it was never seen
+        np.testing.assert_array_equal(made.weights[k][unseen], 0.25)
+        np.testing.assert_array_equal(made.weights[k][~unseen], 1.0)
+
+
 class _Brighten:
     conditions = "tex"
 
@@ -152,12 +166,14 @@ def test_keep_carried_takes_the_refiner_only_where_nothing_was_carried():
 
 def test_truth_needs_no_aligner():
     assert not needs_aligner(PseudoConfig("truth")) and needs_aligner(PseudoConfig("coarse"))
+    assert needs_aligner(PseudoConfig("truth_seen", mask="alpha"))  # it asks where real pixels were carried
     assert needs_aligner(PseudoConfig("refined", mask="alpha"), "warp") and not needs_aligner(PseudoConfig("refined", mask="alpha"), "tex")
 
 
 @pytest.mark.parametrize("cfg, kw, match", [
     (PseudoConfig("refined", mask="alpha"), {}, "refiner: kind 'refined' needs a Refiner"),
     (PseudoConfig("truth", mask="alpha"), {}, "truth: kind 'truth' needs"),
+    (PseudoConfig("truth_seen"), {}, "truth: kind 'truth_seen' needs"),
     (PseudoConfig("aligned"), {}, "aligner: kind 'aligned'"),
 ])
 def test_missing_parts_are_named(cfg, kw, match):

@@ -36,9 +36,9 @@ MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_gt.py)
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    mode: str = "coarse"  # one of MODES; "truth" (synthetic subjects only) is the ceiling, for benchmarks
+    mode: str = "coarse"  # one of MODES; "truth" / "truth_seen" (synthetic subjects only): ceilings, for benchmarks
     mask: str = "carried"  # pseudo frame mask: "carried" (body mesh + source mask carried to the draw) or "alpha" (render's)
-    unknown_weight: float = 0.0  # mode "aligned": loss weight of body pixels no real pixel reached
+    unknown_weight: float = 0.0  # modes "aligned", "truth_seen": loss weight of body pixels no real pixel reached
     align_sources: int = 3  # training frames whose pixels the aligned reference fuses per draw
     refiner: str | None = None  # run folder, checkpoint or .onnx (modes refined, examined)
     examiner: str | None = None  # run folder, checkpoint or .onnx (mode examined)
@@ -148,7 +148,7 @@ class Augmenter:
                                 frames.trans.numpy(), frames.viewmat.numpy(), frames.K.numpy(), frames.width, frames.height)
             self.aligner = Aligner(subject.body, views, AlignConfig(sources=cfg.align_sources))
         self.truth = None
-        if cfg.mode == "truth":
+        if self.pseudo_cfg.from_truth:
             from trioman.toolkit.synth.subject import TruthRenderer
 
             self.truth = TruthRenderer(subject)

@@ -17,13 +17,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--extra-weight", type=float, default=None,
                         help="loss weight of the --extra-frames frames (default 1)")
     aug = parser.add_argument_group("online augmentation (Generator -> Refiner -> Examiner during training)")
-    aug.add_argument("--augment", choices=("coarse", "aligned", "refined", "examined", "truth"), default=None,
+    aug.add_argument("--augment", choices=("coarse", "aligned", "refined", "examined", "truth", "truth_seen"), default=None,
                      nargs="?", const="aligned",
                      help="pseudo-GT frames made during training (--augment alone: aligned, the best kind without a "
                           "model; refined by a warp+geo --refiner measured better, docs/augmentation.md): the avatar's own renders at Generator poses and "
                           "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
                           "refined by --refiner (refined), the best of --per-frame refined candidates by --examiner "
-                          "(examined), or the subject's own renderer (truth: synthetic subjects only, the ceiling)")
+                          "(examined), or the subject's own renderer (truth: synthetic subjects only, the ceiling; truth_seen: the same only where "
+                          "a training frame saw the surface)")
     aug.add_argument("--refiner", default=None, metavar="RUN|CKPT|ONNX", help="Refiner: train-refiner run, checkpoint or .onnx")
     aug.add_argument("--examiner", default=None, metavar="RUN|CKPT|ONNX", help="Examiner: train-examiner run, checkpoint or .onnx")
     aug.add_argument("--per-frame", type=int, default=None, help="Generator candidates per source frame (default 2 with an Examiner, else 1)")
@@ -40,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="a pseudo frame's mask: the body mesh plus the source frame's mask carried to the draw "
                           "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
     aug.add_argument("--augment-unknown-weight", type=float, default=None,
-                     help="--augment aligned: loss weight of body pixels no real pixel reached (default 0)")
+                     help="--augment aligned|truth_seen: loss weight of body pixels no real pixel reached (default 0)")
     aug.add_argument("--augment-keep-carried", action=argparse.BooleanOptionalAction, default=None,
                      help="--augment refined|examined: keep the real pixels carried to the draw and take the "
                           "Refiner's output only where nothing was carried (default with those kinds; measured best, "
@@ -105,7 +106,7 @@ def augment_config(args: argparse.Namespace):
     flags = [flag for flag in _AUGMENT_FLAGS if getattr(args, flag) is not None]
     if args.augment is None:
         if flags:
-            raise ValueError(f"--{flags[0].replace('_', '-')}: needs --augment coarse|aligned|refined|examined|truth")
+            raise ValueError(f"--{flags[0].replace('_', '-')}: needs --augment coarse|aligned|refined|examined|truth|truth_seen")
         return None
     given = {_AUGMENT_FLAGS[flag]: getattr(args, flag) for flag in flags}
     for key in ("refiner", "examiner"):
