@@ -161,6 +161,7 @@ class AblationBenchConfig:
     variants: tuple[str, ...] | None = None  # the rows trained (None: all); the others are reported when finished
     ablation_subjects: tuple[str, ...] | None = None  # held-out subjects of the corpus (None: all of them)
     training: bool = True  # False: report the finished runs, train nothing
+    jobs: int = 1  # avatar runs trained at once, each in its own process with an equal share of the cores
 
     def __post_init__(self) -> None:
         from trioman.bench.common import check_choice, check_int, check_names, check_path
@@ -170,7 +171,7 @@ class AblationBenchConfig:
         check_int(self, "size", 2)
         check_int(self, "heldout", 1)
         for name in ("subjects", "refiner_steps", "examiner_steps", "batch", "crop", "iterations", "seeds",
-                     "augment_pool", "augment_refresh"):
+                     "augment_pool", "augment_refresh", "jobs"):
             check_int(self, name)
         if self.baseline_frames not in ("all", "subset"):
             raise ValueError(f"baseline_frames: ablation trains on one corpus variant, 'all' or 'subset', "
@@ -211,6 +212,38 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
                         weight=plan.weight, mask=plan.mask, camera=plan.camera, **paths, **SETTINGS.get(name, {}))
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
+
+
+def _train_run(subject: str, run: str, cfg, threads: int, with_lpips: bool) -> None:
+    """One avatar run in a worker process of ``train_in_parallel``, with ``threads`` torch threads."""
+    from trioman.toolkit.lpips import load_lpips
+    from trioman.toolkit.train.loop import train
+
+    torch.set_num_threads(threads)
+    train(Path(subject), Path(run), cfg, resume=(Path(run) / "config.json").exists(), progress=False,
+          lpips=load_lpips() if with_lpips else None)
+
+
+def train_in_parallel(todo: list[tuple[Path, Path, object]], jobs: int, with_lpips: bool) -> None:
+    """Train the runs ``todo`` [(subject, run folder, TrainConfig)] in ``jobs`` worker processes, each with an
+    equal share of the cores (at least one thread); one line per finished run. A failed run stops the others
+    not yet started and is raised naming its folder (the finished ones stay; a rerun resumes the rest)."""
+    import concurrent.futures
+    import multiprocessing
+    import os
+
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    t = time.perf_counter()
+    ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch thread pools
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
+        running = {pool.submit(_train_run, str(s), str(r), cfg, threads, with_lpips): r for s, r, cfg in todo}
+        for done, future in enumerate(concurrent.futures.as_completed(running), 1):
+            run = running[future]
+            if future.exception() is not None:
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise RuntimeError(f"bench ablation: run {run} failed: {future.exception()}") from future.exception()
+            print(f"bench ablation: trained {run.parent.name}/{run.name} ({done}/{len(todo)}, {jobs} jobs x {threads} "
+                  f"threads, {time.perf_counter() - t:.0f} s so far)", flush=True)
 
 
 def _iterations(name: str, plan: AblationPlan) -> int:
@@ -332,9 +365,15 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     results: dict[str, dict] = {}
     truth: dict[str, dict] = {}
     poses = "true" if plan.pose_noise > 0 else "stored"
+    subjects = {h: regime_subject(corpus / "subjects" / h, out, plan) for h in names}
+    if config.jobs > 1 and not report_only:
+        todo = [(subjects[h], plan.run(out, h, v, seed), _train_config(v, seed, plan, models))
+                for h in names for v, seed in _variant_runs(plan)
+                if (only is None or v in only) and not finished(plan.run(out, h, v, seed), _iterations(v, plan))]
+        train_in_parallel(todo, config.jobs, lpips is not None)
     for heldout_name in names:
         name = heldout_name + plan.regime
-        subject = regime_subject(corpus / "subjects" / heldout_name, out, plan)
+        subject = subjects[heldout_name]
         results[name] = {}
         for variant, seed in _variant_runs(plan):
             t = time.perf_counter()

@@ -28,7 +28,7 @@ FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
     "detail_sigma", "coverage", "pose_noise", "reach", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
-    "variants", "ablation_subjects")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
+    "variants", "ablation_subjects", "jobs")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -89,6 +89,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ablation: train only these rows (comma-separated); the others are reported when finished")
     parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",
                         help="ablation: comma-separated held-out subjects of the corpus (default: all of them)")
+    parser.add_argument("--jobs", type=int, default=None,
+                        help="ablation: avatar runs trained at once, each in its own process with an equal share of the "
+                             "cores (default 1)")
 
 
 def bench_config(cls: type, args: argparse.Namespace):
