@@ -755,8 +755,8 @@ def ablation_markdown(r: dict) -> str:
                      + (f"; the full system recovers {v['full_share_of_ceiling']:.0%} of it (target >= 85 %)."
                         if "full_share_of_ceiling" in v else "."))
     if "full_share_of_seen_ceiling" in v:
-        lines.append(f"The truth only where a training frame saw the surface reaches {v['seen_share_of_ceiling']:.0%} of the "
-                     f"ceiling's gain: the rest needs what the capture never saw. The full system recovers "
+        lines.append(f"The truth only where a training frame saw the surface (the body pixels no frame saw left unsupervised) "
+                     f"reaches {v['seen_share_of_ceiling']:.0%} of the ceiling's gain; the full system recovers "
                      f"{v['full_share_of_seen_ceiling']:.0%} of that seen-surface ceiling's gain.")
     if v.get("unmasked_at_least_baseline"):
         below = [k for k, ok in v["unmasked_at_least_baseline"].items() if not ok]
