@@ -18,7 +18,7 @@ from trioman.toolkit.distributed import MIXED_PRECISION, data_parallel
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig, PatchLogits
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.toolkit.loops.checkpoint import SELECTED, load_checkpoint, save_atomic
+from trioman.toolkit.loops.checkpoint import SELECTED, check_loop_settings, load_checkpoint, save_atomic
 from trioman.toolkit.loops.model_run import ModelRun
 
 
@@ -45,12 +45,7 @@ class ExaminerTrainConfig:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
         if self.weight_decay < 0:
             raise ValueError(f"weight_decay: must be >= 0, got {self.weight_decay}")
-        if self.checkpoint_every < 1:
-            raise ValueError(f"checkpoint_every: must be >= 1, got {self.checkpoint_every}")
-        if self.keep_checkpoints < 1:
-            raise ValueError(f"keep_checkpoints: must be >= 1, got {self.keep_checkpoints}")
-        if not isinstance(self.max_skipped, int) or self.max_skipped < 1:
-            raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
+        check_loop_settings(self)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from trioman.toolkit.distributed import MIXED_PRECISION, data_parallel
-from trioman.toolkit.loops.checkpoint import load_checkpoint
+from trioman.toolkit.loops.checkpoint import check_loop_settings, load_checkpoint
 from trioman.toolkit.loops.guard import StepGuard
 from trioman.toolkit.loops.model_run import ModelRun
 from trioman.toolkit.refiner.backbones import create_refiner
@@ -46,12 +46,7 @@ class RefinerTrainConfig:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
         if not self.grad_clip >= 0:
             raise ValueError(f"grad_clip: must be >= 0, got {self.grad_clip}")
-        if self.checkpoint_every < 1:
-            raise ValueError(f"checkpoint_every: must be >= 1, got {self.checkpoint_every}")
-        if self.keep_checkpoints < 1:
-            raise ValueError(f"keep_checkpoints: must be >= 1, got {self.keep_checkpoints}")
-        if not isinstance(self.max_skipped, int) or self.max_skipped < 1:
-            raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
+        check_loop_settings(self)
         if self.mixed_precision not in MIXED_PRECISION:
             raise ValueError(f"mixed_precision: expected one of {MIXED_PRECISION}, got {self.mixed_precision!r}")
         if not isinstance(self.gradient_checkpointing, bool):

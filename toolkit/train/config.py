@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from trioman.toolkit.avatar.model import AvatarConfig
+from trioman.toolkit.loops.checkpoint import check_loop_settings
 from trioman.toolkit.train.augmentation import AugmentConfig
 
 
@@ -54,8 +55,7 @@ class TrainConfig:
             raise ValueError(f"image_scale: must lie in [0.05, 1], got {self.image_scale}")
         if self.frames not in ("train", "all"):
             raise ValueError(f"frames: expected 'train' or 'all', got {self.frames!r}")
-        if isinstance(self.max_skipped, bool) or not isinstance(self.max_skipped, int) or self.max_skipped < 1:
-            raise ValueError(f"max_skipped: must be a positive integer, got {self.max_skipped!r}")
+        check_loop_settings(self)
         if self.frame_stride < 1:
             raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
         for name in ("lr", "point_color_lr"):
