@@ -464,10 +464,9 @@ def summarise(results: dict[str, dict]) -> dict:
         if "GRE" in share:
             verdict["full_share_of_ceiling"] = share["GRE"]
             verdict["full_recovers_85_percent"] = share["GRE"] >= 0.85
-        seen = p.get("ceiling_seen", p["baseline_long"]) - p["baseline_long"]
-        if "GRE" in share and abs(seen) > 1e-9:  # shares of gains that are not zero
+        if {"GRE", "ceiling_seen"} <= set(share) and abs(share["ceiling_seen"]) > 1e-9:
             verdict["seen_share_of_ceiling"] = share["ceiling_seen"]
-            verdict["full_share_of_seen_ceiling"] = (p["GRE"] - p["baseline_long"]) / seen
+            verdict["full_share_of_seen_ceiling"] = share["GRE"] / share["ceiling_seen"]
     if "baseline" in mean and mean["baseline"]["psnr_unmasked"] is not None:
         base = mean["baseline"]["psnr_unmasked"]
         verdict["unmasked_at_least_baseline"] = {v: mean[v]["psnr_unmasked"] >= base for v in variants
