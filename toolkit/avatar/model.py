@@ -108,19 +108,26 @@ class PoseMLP(nn.Module):
         return self.rest(torch.relu(feat_in + self.pose_in(pose_feat)))
 
 
+def _csr_mm(S: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """S [N, M] (sparse CSR) @ x [M, C] -> [N, C], as a weighted bag sum of x's rows per row of S (faster on
+    the CPU than torch.sparse.mm for these few non-zeros per row)."""
+    return F.embedding_bag(S.col_indices(), x, S.crow_indices(), mode="sum", per_sample_weights=S.values().to(x.dtype),
+                           include_last_offset=True)
+
+
 class _SparseProduct(torch.autograd.Function):
     """S @ x for a constant sparse S [N, M] (CSR) and x [M, C]; the backward multiplies by the transpose given
-    with it (torch.sparse.mm would transpose S at every backward pass)."""
+    with it (CSR, built once)."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor, S: torch.Tensor, St: torch.Tensor) -> torch.Tensor:
         ctx.St = St
-        return torch.sparse.mm(S, x)
+        return _csr_mm(S, x)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, grad: torch.Tensor):
-        return torch.sparse.mm(ctx.St, grad.contiguous()), None, None
+        return _csr_mm(ctx.St, grad.contiguous()), None, None
 
 
 class GaussianAvatar(nn.Module):
@@ -199,30 +206,37 @@ class GaussianAvatar(nn.Module):
     def _with_point_rgb(self, logits: torch.Tensor) -> torch.Tensor:
         return logits + self.point_rgb if self.cfg.point_colors else logits
 
-    def _first_layers(self, feats: torch.Tensor) -> list[torch.Tensor]:
-        """feats [N, F] -> the first layers of the MLPs that read them, [N, H] each (geo, rgb, then the pose
-        MLPs' point parts): one matrix product for all of them, so the backward pass builds one gradient of
-        the features instead of summing one per MLP."""
+    def _first_layers(self) -> list[torch.Tensor]:
+        """The first layers of the MLPs that read the triplane's features at the Gaussians, [N, H] each (geo,
+        rgb, then the pose MLPs' point parts): one product for all of them, so the backward pass builds one
+        gradient of the planes instead of summing one per MLP."""
         layers = [self.geo_net[0], self.rgb_net[0]]
         if self.cfg.pose_dependent and not self.coarse_pose:
             layers += self._pose_first_layers()
-        return self._linears(feats, layers)
+        return self._point_layers("canonical", self.canonical, layers)
 
     def _pose_first_layers(self) -> list[nn.Linear]:
         """The pose MLPs' first layers on the point features (geo, rgb)."""
         return [self.geo_offset_net.feat_in, self.rgb_offset_net.feat_in]
 
-    @staticmethod
-    def _linears(x: torch.Tensor, layers: list[nn.Linear]) -> list[torch.Tensor]:
-        """x [N, F] through ``layers`` (each F -> H_i) as one matrix product -> [N, H_i] each."""
-        out = F.linear(x, torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers]))
-        return list(out.split([m.out_features for m in layers], dim=1))
+    def _point_layers(self, name: str, points: torch.Tensor, layers: list[nn.Linear]) -> list[torch.Tensor]:
+        """``layers`` (each 3C -> H_i) on the triplane's features at the constant ``points`` [N, 3] (a buffer;
+        ``name`` keys its cached sampling) -> [N, H_i] each. When the points outnumber the texels the layers
+        run on the texels and their outputs are sampled (``Triplane.texel_layer``): 3 R^2 x 3C x H plus 12 N H
+        multiply-adds instead of N x 3C x H; otherwise on the sampled features."""
+        weight, bias = torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers])
+        sizes = [m.out_features for m in layers]
+        tp = self.triplane
+        if points.shape[0] <= tp.texels:
+            return list(F.linear(tp(points), weight, bias).split(sizes, dim=1))
+        sample = self._sparse(f"{name} sampling", (points, tp.center), lambda: tp.sampling(points))
+        return list((_SparseProduct.apply(tp.texel_layer(weight), *sample) + bias).split(sizes, dim=1))
 
     def pose_deltas(self, pose_feat: torch.Tensor, point_layers: list[torch.Tensor] | None = None) -> torch.Tensor:
         """pose_feat [6 J_cond] -> [M, 3 + S + 3] the pose MLPs' deltas (offset, log scale, colour logits) at
         ``pose_points``. point_layers: their first layers' point parts [M, H] x 2 when already computed."""
         if point_layers is None:
-            point_layers = self._linears(self.triplane(self.pose_points), self._pose_first_layers())
+            point_layers = self._point_layers("pose", self.pose_points, self._pose_first_layers())
         dgeo = self.geo_offset_net.from_feat_in(point_layers[0], pose_feat)
         return torch.cat([dgeo, self.rgb_offset_net.from_feat_in(point_layers[1], pose_feat)], dim=1)
 
@@ -247,8 +261,7 @@ class GaussianAvatar(nn.Module):
     def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
         """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
         with stage("triplane + MLPs"):
-            feats = self.triplane(self.canonical)
-            z = self._first_layers(feats)
+            z = self._first_layers()
             geo = self.geo_net[1:](z[0])
             s = 3 if self.cfg.anisotropic else 1
             offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
