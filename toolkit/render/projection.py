@@ -120,8 +120,7 @@ def project(means, quats, scales, opacities, viewmat, K, width: int, height: int
         keep &= opacities.detach().float() >= torch.tensor(ALPHA_THRESHOLD, dtype=torch.float32)
     ids = torch.nonzero(keep).squeeze(1)
     mc = take_rows(mc_all, ids)
-    R = quat_to_matrix(take_rows(quats, ids).to(f64))
-    M = Rv @ (R * take_rows(scales, ids).to(f64)[:, None, :])  # [M, 3, 3] camera-frame factor: Sigma_c = M M^T
+    sc = take_rows(scales, ids)
     tx, ty, tz = mc.unbind(-1)
     fx, fy, cx, cy = Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2]
     tan_fovx, tan_fovy = 0.5 * width / fx, 0.5 * height / fy
@@ -129,15 +128,28 @@ def project(means, quats, scales, opacities, viewmat, K, width: int, height: int
     lim_x_neg = cx / fx + 0.3 * tan_fovx
     lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
     lim_y_neg = cy / fy + 0.3 * tan_fovy
-    txc = tz * torch.clamp(tx / tz, min=-lim_x_neg, max=lim_x_pos)
-    tyc = tz * torch.clamp(ty / tz, min=-lim_y_neg, max=lim_y_pos)
-    # rows of N = J M: J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]]
-    n0 = (fx / tz)[:, None] * (M[:, 0, :] - (txc / tz)[:, None] * M[:, 2, :])
-    n1 = (fy / tz)[:, None] * (M[:, 1, :] - (tyc / tz)[:, None] * M[:, 2, :])
-    p00, p11 = (n0 * n0).sum(-1), (n1 * n1).sum(-1)
-    s00, s11, s01 = p00 + eps2d, p11 + eps2d, (n0 * n1).sum(-1)
-    cross = torch.linalg.cross(n0, n1)
-    det = eps2d * eps2d + eps2d * (p00 + p11) + (cross * cross).sum(-1)
+    ax = torch.clamp(tx / tz, min=-lim_x_neg, max=lim_x_pos)  # x'/z: the clamped ratio J uses
+    ay = torch.clamp(ty / tz, min=-lim_y_neg, max=lim_y_pos)
+    # J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]]; Sigma_2d = N N^T + eps2d I with N = J M, Sigma_c = M M^T
+    if scales.stride(1) == 0 and not quats.requires_grad:
+        # one scale per Gaussian broadcast to three axes (an expand): Sigma_c = s^2 I for any rotation, so
+        # N N^T = s^2 J J^T and the quaternions are not read
+        k = sc[:, 0].to(f64) / tz
+        kx, ky = fx * k, fy * k
+        p00, p11 = kx * kx * (1 + ax * ax), ky * ky * (1 + ay * ay)
+        s01 = kx * ky * ax * ay
+        kxy = kx * ky
+        cross2 = kxy * kxy * (ax * ax + ay * ay + 1)  # |n0 x n1|^2, n0 x n1 = fx fy k^2 (x'/z, y'/z, 1)
+    else:
+        R = quat_to_matrix(take_rows(quats, ids).to(f64))
+        M = Rv @ (R * sc.to(f64)[:, None, :])  # [M, 3, 3] camera-frame factor: Sigma_c = M M^T
+        n0 = (fx / tz)[:, None] * (M[:, 0, :] - ax[:, None] * M[:, 2, :])  # rows of N
+        n1 = (fy / tz)[:, None] * (M[:, 1, :] - ay[:, None] * M[:, 2, :])
+        p00, p11, s01 = (n0 * n0).sum(-1), (n1 * n1).sum(-1), (n0 * n1).sum(-1)
+        cross = torch.linalg.cross(n0, n1)
+        cross2 = (cross * cross).sum(-1)
+    s00, s11 = p00 + eps2d, p11 + eps2d
+    det = eps2d * eps2d + eps2d * (p00 + p11) + cross2
     conics = torch.stack([s11 / det, -s01 / det, s00 / det], -1)
     chol = torch.stack([torch.sqrt(s11 / det), -s01 / torch.sqrt(det * s11), 1.0 / torch.sqrt(s11)], -1)
     mean2d = (mc[:, :2] @ Kd[:2, :2].T + Kd[:2, 2] * tz[:, None]) / tz[:, None]  # gsplat: K[:2] @ m / z

@@ -331,6 +331,43 @@ def test_projection_matches_reference():
         assert abs(proj.depths[i].item() - r["depth"]) < 1e-12
 
 
+@pytest.mark.parametrize("seed", [13, 14])
+def test_isotropic_projection_matches_reference_and_the_general_path(seed):
+    """One scale per Gaussian broadcast to three axes (the avatar's expand) takes the isotropic path (no
+    quaternion read): the oracle's conics, and the general path's values and gradients (the general path runs
+    when the quaternions need a gradient)."""
+    from trioman.toolkit.render.projection import project
+
+    scene = random_scene(seed, n=60)
+    scene["scales"][:] = scene["scales"][:, :1]
+    scene["scales"][:4] *= np.array([1e-4, 1e-2, 10.0, 100.0])[:, None]  # tiny to huge, each still isotropic
+    scene["means"][4, :2] = 50.0  # far off the axis: the tan-fov clamp applies
+    ts = as_tensors(scene, torch.float64)
+    W, H = scene["width"], scene["height"]
+    proj = project_gaussians(ts[0], ts[1], ts[2][:, :1].expand(-1, 3), ts[3], *ts[5:], W, H)
+    ref = project_reference(*(t.numpy() for t in ts[:4]), *(t.numpy() for t in ts[5:]), W, H)
+    assert sum(r is not None for r in ref) > 30
+    for i, r in enumerate(ref):
+        assert bool(proj.visible[i]) == (r is not None)
+        if r is not None:
+            assert np.allclose(proj.conics[i].numpy(), r["conic"], rtol=1e-9, atol=1e-12)
+            assert proj.radii[i].tolist() == [int(r["radii"][0]), int(r["radii"][1])]
+    results = []
+    for general in (False, True):
+        means, scales = ts[0].clone().requires_grad_(), ts[2][:, :1].clone().requires_grad_()
+        quats = ts[1].clone().requires_grad_(general)
+        p = project(means, quats, scales.expand(-1, 3), ts[3], *ts[5:], W, H)
+        out = torch.cat([p.means2d, p.chol, p.conics], 1)
+        weights = torch.randn(out.shape, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        grads = torch.autograd.grad((out * weights).sum(), (means, scales))
+        results.append((p.ids, out.detach(), grads))
+    (ids_i, out_i, grads_i), (ids_g, out_g, grads_g) = results
+    assert torch.equal(ids_i, ids_g)
+    torch.testing.assert_close(out_i, out_g, rtol=1e-9, atol=1e-12)
+    for a, b in zip(grads_i, grads_g):
+        torch.testing.assert_close(a, b, rtol=1e-8, atol=1e-10 * float(b.abs().max()))
+
+
 def test_projection_matches_gsplat_torch_reference():
     impl = pytest.importorskip("gsplat.cuda._torch_impl")
     scene = random_scene(13, n=200, width=64, height=48)
