@@ -1,11 +1,14 @@
 """Differentiable tile rasterizer for 3D Gaussians on the CPU (torch): ``rasterize``, the training renderer.
 
 What it computes: docs/design.md, "Renderer semantics"; how (pipeline, precision, the backward pass,
-tile size): its "How the renderers compute it".
+tile size): its "How the renderers compute it". The dense evaluation has two implementations: the torch
+one (``_Raster``, the reference) and a C kernel (``raster_cpu.c`` through ``_NativeRaster``) with the same
+semantics, used for float32 CPU renders when it builds.
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
 from typing import NamedTuple
 
@@ -14,6 +17,7 @@ import torch.nn.functional as F
 from torch.autograd.function import once_differentiable
 
 from trioman.runtime.render.timing import stage
+from trioman.toolkit.render import native
 from trioman.toolkit.render.projection import (
     ALPHA_THRESHOLD,
     EPS2D,
@@ -25,6 +29,7 @@ from trioman.toolkit.render.projection import (
 )
 from trioman.toolkit.render.tiles import bin_gaussians
 
+BACKENDS = ("auto", "torch", "native")  # see rasterize()
 TILE_RANGE = (4, 16)  # the default tile side's bounds, pixels (docs/design.md, "How the renderers compute it")
 DEFAULT_CHUNK_ELEMENTS = 1 << 18  # pixel x Gaussian entries per dense block tensor (1 MiB in float32)
 KB_MIN = 16  # shortest block along the lists
@@ -279,6 +284,59 @@ class _Raster(torch.autograd.Function):
         return (g_gq,) + (None,) * 10
 
 
+def _ptr(x: torch.Tensor) -> int:
+    assert x.is_contiguous()
+    return x.data_ptr()
+
+
+class _NativeRaster(torch.autograd.Function):
+    """``_Raster``'s forward and backward in C (raster_cpu.c), float32 on the CPU: gq [M, 10] float64,
+    radii [M, 2] float64, the bins, the tile side s -> color [T, 4, s^2], T_final [T, s^2] (float32)."""
+
+    @staticmethod
+    def forward(ctx, gq, radii, bins, s, width, height, lib):
+        n_tiles = bins.tiles_x * bins.tiles_y
+        color = torch.empty(n_tiles, 4, s * s, dtype=_F32)
+        T_final = torch.empty(n_tiles, s * s, dtype=_F32)
+        last = torch.empty(n_tiles, s * s, dtype=torch.int32)  # list position where each pixel stopped
+        scene = (gq.detach().contiguous(), radii.to(torch.float64).contiguous(), bins.pair_gauss.contiguous(),
+                 bins.tile_start.contiguous(), bins.tile_count.contiguous())
+        lib.raster_forward(*map(_ptr, scene), bins.tiles_x, bins.tiles_y, s, width, height, torch.get_num_threads(),
+                           _ptr(color), _ptr(T_final), _ptr(last))
+        ctx.scene, ctx.dims, ctx.lib = scene, (bins.tiles_x, bins.tiles_y, s, width, height), lib
+        ctx.save_for_backward(T_final, last)
+        return color, T_final
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_color, g_T):
+        with stage("rasterizer backward"):
+            T_final, last = ctx.saved_tensors
+            gq, pair_gauss = ctx.scene[0], ctx.scene[2]
+            g_color, g_T = g_color.to(_F32).contiguous(), g_T.to(_F32).contiguous()
+            g_pair = torch.empty(pair_gauss.shape[0], 10, dtype=torch.float64)  # per pair, scratch
+            g_gq = torch.zeros_like(gq)
+            ctx.lib.raster_backward(*map(_ptr, ctx.scene), *ctx.dims, torch.get_num_threads(), _ptr(T_final),
+                                    _ptr(last), _ptr(g_color), _ptr(g_T), _ptr(g_pair), _ptr(g_gq))
+        return (g_gq,) + (None,) * 6
+
+
+def _native_kernel(backend: str, dt: torch.dtype, device: torch.device) -> ctypes.CDLL | None:
+    """The C kernel's library when ``backend`` selects it for this render, else None (the torch path)."""
+    if backend == "torch":
+        return None
+    fits = dt == _F32 and device.type == "cpu"
+    if backend == "auto":
+        return native.load() if fits else None
+    if not fits:
+        raise ValueError(f"backend: 'native' renders float32 on the CPU, got {dt} on {device}")
+    lib = native.load()
+    if lib is None:
+        raise RuntimeError(f"backend='native': the C rasterizer kernel is unavailable ({native.ENV_SWITCH}=0, "
+                           "or it could not be built: see the warning)")
+    return lib
+
+
 def tile_side(radii: torch.Tensor) -> int:
     """radii [M, 2] of the visible Gaussians (whole pixels) -> the default tile side: twice the median of
     the larger radius, within ``TILE_RANGE``."""
@@ -306,6 +364,7 @@ def rasterize(
     *,
     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
     tile_size: int | None = None,
+    backend: str = "auto",
 ) -> RenderOutput:
     """Render Gaussians -> RenderOutput(rgb [H, W, 3], alpha [H, W], depth [H, W]) (docs/design.md, "Renderer semantics").
 
@@ -315,7 +374,10 @@ def rasterize(
     the work goes to ``gsplat.rasterization`` (see :func:`_rasterize_gsplat`). ``chunk_elements``
     bounds the dense pixel x Gaussian block tensors (peak memory); ``tile_size`` is the tile side (None:
     :func:`tile_side` of the visible Gaussians).
-    Neither changes the result beyond float32 rounding of the colour sums.
+    Neither changes the result beyond float32 rounding of the colour sums. ``backend``: "torch" (the
+    reference ``_Raster``), "native" (the C kernel; float32 CPU renders only, an error when it cannot be
+    loaded) or "auto" (the C kernel for float32 CPU renders when it loads, else torch); the two agree
+    up to float32 rounding.
     """
     n, width, height = check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height,
                                     background, near_plane, far_plane)
@@ -324,6 +386,8 @@ def rasterize(
     if tile_size is not None and (isinstance(tile_size, bool) or not isinstance(tile_size, int)
                                   or not 1 <= tile_size <= 64):
         raise ValueError(f"tile_size: must be an int in [1, 64], got {tile_size!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: must be one of {BACKENDS}, got {backend!r}")
     dt = torch.float64 if means.dtype == torch.float64 else _F32
     dev = means.device
     bg = background.to(dt) if background is not None else torch.zeros(3, dtype=dt, device=dev)
@@ -338,6 +402,7 @@ def rasterize(
     if means.is_cuda and _gsplat_available():
         return _rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height, background,
                                  near_plane, far_plane)
+    lib = _native_kernel(backend, dt, dev)
     with stage("projection"):
         p = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
         if p.ids.numel() == 0:
@@ -348,13 +413,11 @@ def rasterize(
     with stage("tile binning"):
         s = tile_side(p.radii) if tile_size is None else tile_size
         bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
-    ty, tx = torch.meshgrid(torch.arange(bins.tiles_y, device=dev), torch.arange(bins.tiles_x, device=dev),
-                            indexing="ij")
-    li = torch.arange(s, device=dev)
-    inside = (ty.reshape(-1, 1, 1) * s + li[:, None] < height) & (tx.reshape(-1, 1, 1) * s + li[None, :] < width)
     with stage("rasterizer forward"):
-        color, T_final = _Raster.apply(gq, p.radii, bins.pair_gauss, bins.pair_tile, bins.tile_start,
-                                       bins.tile_count, bins.tiles_x, inside, s, chunk_elements, dt)
+        if lib is not None:
+            color, T_final = _NativeRaster.apply(gq, p.radii, bins, s, width, height, lib)
+        else:
+            color, T_final = _torch_raster(gq, p.radii, bins, s, width, height, chunk_elements, dt)
 
     def to_image(x):  # [T, C, s^2] -> [H, W, C]
         C = x.shape[1]
@@ -365,6 +428,17 @@ def rasterize(
     T = to_image(T_final.unsqueeze(1))
     rgb = color[..., :3] + T * bg
     return RenderOutput(rgb, 1.0 - T[..., 0], color[..., 3])
+
+
+def _torch_raster(gq, radii, bins, s: int, width: int, height: int, chunk_elements: int, dt):
+    """``_Raster`` on the bins: color [T, 4, s^2], T_final [T, s^2] in ``dt``."""
+    dev = gq.device
+    ty, tx = torch.meshgrid(torch.arange(bins.tiles_y, device=dev), torch.arange(bins.tiles_x, device=dev),
+                            indexing="ij")
+    li = torch.arange(s, device=dev)
+    inside = (ty.reshape(-1, 1, 1) * s + li[:, None] < height) & (tx.reshape(-1, 1, 1) * s + li[None, :] < width)
+    return _Raster.apply(gq, radii, bins.pair_gauss, bins.pair_tile, bins.tile_start, bins.tile_count,
+                         bins.tiles_x, inside, s, chunk_elements, dt)
 
 
 # --------------------------------------------------------------------------------------------
