@@ -279,7 +279,7 @@ def test_training_step_matches_the_reference_step(options):
         reg = offset.square().mean() + log_scale.square().mean() + 100 * sum(x.square().mean() for x in lap)
         loss = reg
         for g in sets:
-            img = rasterize(*g, viewmat, K, 48, 48, background=torch.ones(3), **({} if fast else {"tile_size": 8})).rgb
+            img = rasterize(*g, viewmat, K, 48, 48, background=torch.ones(3), **({} if fast else {"tile_size": 8, "backend": "torch"})).rgb
             loss = loss + (img - target).abs().mean()
         loss.backward()
         grads = {n: p.grad.clone() for n, p in model.named_parameters()} | {"pose": pose.grad.clone()}
