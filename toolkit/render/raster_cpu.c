@@ -6,6 +6,10 @@ float32; per pixel in float32, U = (u0 + a L_col) + b L_row, v = v0 + c L_row,
 exponent = (log o - v^2) - U^2, alpha = min(0.99, exp(exponent)), skipped below 1/255;
 next_T = T (1 - alpha), and the pixel stops, that Gaussian excluded, when next_T <= 1e-4.
 A pixel sees a Gaussian only inside its closed radius box, |float32(d) + L| <= float32(radius).
+T is a sequential float32 product (the torch path rounds a cumulative product taken in float64, so T
+may differ by a few ulps, never at the exact stop tie of two capped alphas); the colour sums are
+float32. The backward recovers T before each Gaussian as T / (1 - alpha), as gsplat's does, and sums
+each pair's gradient over its pixels in float64.
 
 Layout: gq [M, 10] float64 rows (mean2d x, y, a, b, c, log o, r, g, b, z); radii [M, 2] float64;
 pair_gauss [P] int64 by tile, front to back; tile_start, tile_count [T] int64; per tile, pixel
@@ -40,12 +44,12 @@ typedef struct {
 /* One pair's per-row and per-column terms over the rows i0..i1-1 and columns j0..j1-1 of its box. */
 typedef struct {
     int i0, i1, j0, j1;
-    float a, b, c, f[4];       /* float32 Cholesky factor, r, g, b, z */
-    double ad, bd, cd, d0, d1; /* a, b, c as float32 values in float64; centre - mean2d */
-    float colt[MAX_S];         /* u0 + a L_col */
-    float rowt[MAX_S];         /* b L_row */
-    float v[MAX_S];            /* v0 + c L_row */
-    float hv[MAX_S];           /* log o - v^2 */
+    float a, b, c, f[4]; /* float32 Cholesky factor, r, g, b, z */
+    double d0, d1;       /* tile centre - mean2d */
+    float colt[MAX_S];   /* u0 + a L_col */
+    float rowt[MAX_S];   /* b L_row */
+    float v[MAX_S];      /* v0 + c L_row */
+    float hv[MAX_S];     /* log o - v^2 */
 } Pair;
 
 static void scene_init(Scene *sc, const double *gq, const double *radii, const int64_t *pair_gauss,
@@ -103,9 +107,6 @@ static int pair_init(const Scene *sc, const Tile *tl, int64_t g, Pair *p) {
     p->a = (float)q[2];
     p->b = (float)q[3];
     p->c = (float)q[4];
-    p->ad = p->a;
-    p->bd = p->b;
-    p->cd = p->c;
     for (int k = 0; k < 4; k++) p->f[k] = (float)q[6 + k];
     for (int j = p->j0; j < p->j1; j++) p->colt[j] = u0 + p->a * sc->L[j];
     for (int i = p->i0; i < p->i1; i++) {
@@ -195,8 +196,8 @@ static void zero_row(double *row) {
 
 /* The gradient row of pair p from its sums: mean2d x, y, a, b, c, log o, r, g, b, z (d = centre - mean2d). */
 static void pair_grad_row(const Pair *p, const PairGrad *s, double *out) {
-    out[0] = -s->u0 * p->ad;
-    out[1] = -s->u0 * p->bd - s->v0 * p->cd;
+    out[0] = -s->u0 * (double)p->a;
+    out[1] = -s->u0 * (double)p->b - s->v0 * (double)p->c;
     out[2] = s->aL + s->u0 * p->d0;
     out[3] = s->bL + s->u0 * p->d1;
     out[4] = s->cL + s->v0 * p->d1;
