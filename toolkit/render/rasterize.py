@@ -30,7 +30,8 @@ from trioman.toolkit.render.projection import (
 from trioman.toolkit.render.tiles import bin_gaussians
 
 BACKENDS = ("auto", "torch", "native")  # see rasterize()
-TILE_RANGE = (4, 16)  # the default tile side's bounds, pixels (docs/design.md, "How the renderers compute it")
+TILE_RANGE = (4, 16)  # the torch path's default tile side's bounds, pixels (docs/design.md, "How the renderers compute it")
+NATIVE_TILE = 16  # the C kernel's default tile side: its cost follows the boxes, not the tile; fewer pairs to bin
 DEFAULT_CHUNK_ELEMENTS = 1 << 18  # pixel x Gaussian entries per dense block tensor (1 MiB in float32)
 KB_MIN = 16  # shortest block along the lists
 
@@ -373,7 +374,7 @@ def rasterize(
     ``means``). N == 0 or nothing visible gives the background. On CUDA tensors with gsplat installed
     the work goes to ``gsplat.rasterization`` (see :func:`_rasterize_gsplat`). ``chunk_elements``
     bounds the dense pixel x Gaussian block tensors (peak memory); ``tile_size`` is the tile side (None:
-    :func:`tile_side` of the visible Gaussians).
+    ``NATIVE_TILE`` for the C kernel, :func:`tile_side` of the visible Gaussians for the torch path).
     Neither changes the result beyond float32 rounding of the colour sums. ``backend``: "torch" (the
     reference ``_Raster``), "native" (the C kernel; float32 CPU renders only, an error when it cannot be
     loaded) or "auto" (the C kernel for float32 CPU renders when it loads, else torch); the two agree
@@ -411,7 +412,7 @@ def rasterize(
         gq = torch.cat([p.means2d, p.chol * _SQRT_HALF, torch.log(take_rows(opacities, p.ids).to(f64))[:, None],
                         take_rows(colors, p.ids).to(f64), p.depths[:, None]], 1)  # [M, 10]
     with stage("tile binning"):
-        s = tile_side(p.radii) if tile_size is None else tile_size
+        s = tile_size if tile_size is not None else NATIVE_TILE if lib is not None else tile_side(p.radii)
         bins = bin_gaussians(p.means2d, p.radii, p.depths, width, height, s)
     with stage("rasterizer forward"):
         if lib is not None:
