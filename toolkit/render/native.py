@@ -3,6 +3,8 @@
 The library lives in ``$XDG_CACHE_HOME`` (else ``~/.cache``) under ``trioman/kernels/<sha256>.so``, the
 hash over the source and the compiler command; it is written to a temporary file in that folder and
 renamed into place, so a reader never sees a half-written library and concurrent builds are safe. The
+library has no threads of its own (a second OpenMP runtime beside torch's aborted processes at exit): the
+caller runs disjoint tile ranges on Python threads, which ctypes calls release the GIL for. The
 compiler is ``$CC`` (else ``cc``). ``TRIOMAN_NATIVE=0`` turns the kernel off. When the build or the load
 fails, :func:`load` warns once and returns None, and the renderer keeps its torch path.
 """
@@ -20,14 +22,15 @@ from pathlib import Path
 
 SOURCE = Path(__file__).with_name("raster_cpu.c")
 ENV_SWITCH = "TRIOMAN_NATIVE"
-FLAGS = ("-O3", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fopenmp")
+FLAGS = ("-O3", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off")
 
-_P, _I64, _INT = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
-# gq, radii, pair_gauss, tile_start, tile_count, tiles_x, tiles_y, s, width, height, n_threads
-_SCENE = [_P] * 5 + [_I64] * 5 + [_INT]
+_P, _I64 = ctypes.c_void_p, ctypes.c_int64
+# gq, radii, pair_gauss, tile_start, tile_count, tiles_x, s, width, height, then the tile range t0, t1
+_SCENE = [_P] * 5 + [_I64] * 6
 _SIGNATURES = {
     "raster_forward": _SCENE + [_P] * 3,  # color, T_final, last
-    "raster_backward": _SCENE + [_P] * 6,  # T_final, last, g_color, g_T, g_pair (scratch), g_gq
+    "raster_backward": _SCENE + [_P] * 5,  # T_final, last, g_color, g_T, g_pair
+    "raster_sum_pairs": [_P, _I64, _P, _P],  # pair_gauss, n_pairs, g_pair, g_gq
 }
 
 _loaded: dict[str, ctypes.CDLL | None] = {}  # by library name: the outcome of the first attempt

@@ -13,7 +13,8 @@ each pair's gradient over its pixels in float64.
 
 Layout: gq [M, 10] float64 rows (mean2d x, y, a, b, c, log o, r, g, b, z); radii [M, 2] float64;
 pair_gauss [P] int64 by tile, front to back; tile_start, tile_count [T] int64; per tile, pixel
-q = row * s + column. Tiles run in parallel (OpenMP); each tile's pairs and pixels belong to one thread.
+q = row * s + column. Each call renders the tiles t0..t1-1; the caller runs disjoint ranges on its own threads
+(each tile's pairs and pixels belong to one call), then sums the pairs' gradient rows per Gaussian.
 Compile without FMA contraction and fast-math: the rounding follows the source. */
 
 #include <math.h>
@@ -174,14 +175,13 @@ static void forward_tile(const Scene *sc, int64_t t, float *color, float *T, int
 }
 
 int raster_forward(const double *gq, const double *radii, const int64_t *pair_gauss, const int64_t *tile_start,
-                   const int64_t *tile_count, int64_t tiles_x, int64_t tiles_y, int64_t s, int64_t width,
-                   int64_t height, int n_threads, float *color, float *T_final, int32_t *last) {
+                   const int64_t *tile_count, int64_t tiles_x, int64_t s, int64_t width, int64_t height, int64_t t0,
+                   int64_t t1, float *color, float *T_final, int32_t *last) {
     if (s < 1 || s > MAX_S) return 1;
     Scene sc;
     scene_init(&sc, gq, radii, pair_gauss, tile_start, tile_count, tiles_x, s, width, height);
-    int64_t n_tiles = tiles_x * tiles_y, ss = s * s;
-#pragma omp parallel for schedule(dynamic, 4) num_threads(n_threads)
-    for (int64_t t = 0; t < n_tiles; t++) forward_tile(&sc, t, color + t * 4 * ss, T_final + t * ss, last + t * ss);
+    int64_t ss = s * s;
+    for (int64_t t = t0; t < t1; t++) forward_tile(&sc, t, color + t * 4 * ss, T_final + t * ss, last + t * ss);
     return 0;
 }
 
@@ -259,18 +259,20 @@ static void backward_tile(const Scene *sc, int64_t t, const float *T_final, cons
 }
 
 int raster_backward(const double *gq, const double *radii, const int64_t *pair_gauss, const int64_t *tile_start,
-                    const int64_t *tile_count, int64_t tiles_x, int64_t tiles_y, int64_t s, int64_t width,
-                    int64_t height, int n_threads, const float *T_final, const int32_t *last, const float *g_color,
-                    const float *g_T, double *g_pair, double *g_gq) {
+                    const int64_t *tile_count, int64_t tiles_x, int64_t s, int64_t width, int64_t height, int64_t t0,
+                    int64_t t1, const float *T_final, const int32_t *last, const float *g_color, const float *g_T,
+                    double *g_pair) {
     if (s < 1 || s > MAX_S) return 1;
     Scene sc;
     scene_init(&sc, gq, radii, pair_gauss, tile_start, tile_count, tiles_x, s, width, height);
-    int64_t n_tiles = tiles_x * tiles_y, ss = s * s;
-#pragma omp parallel for schedule(dynamic, 4) num_threads(n_threads)
-    for (int64_t t = 0; t < n_tiles; t++)
+    int64_t ss = s * s;
+    for (int64_t t = t0; t < t1; t++)
         backward_tile(&sc, t, T_final + t * ss, last + t * ss, g_color + t * 4 * ss, g_T + t * ss, g_pair);
-    /* per Gaussian, the sum of its pairs' rows in pair order */
-    int64_t n_pairs = tile_start[n_tiles - 1] + tile_count[n_tiles - 1];
+    return 0;
+}
+
+/* g_gq [M, 10] += per Gaussian, the sum of its pairs' rows g_pair [P, 10], in pair order. */
+int raster_sum_pairs(const int64_t *pair_gauss, int64_t n_pairs, const double *g_pair, double *g_gq) {
     for (int64_t i = 0; i < n_pairs; i++)
         for (int c = 0; c < NQ; c++) g_gq[pair_gauss[i] * NQ + c] += g_pair[i * NQ + c];
     return 0;

@@ -8,8 +8,11 @@ semantics, used for float32 CPU renders when it builds.
 
 from __future__ import annotations
 
+import bisect
 import ctypes
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import torch
@@ -290,6 +293,35 @@ def _ptr(x: torch.Tensor) -> int:
     return x.data_ptr()
 
 
+_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}  # by (process id, threads): a forked child makes its own
+
+
+def _tile_ranges(bins, n_tiles: int) -> list[tuple[int, int]]:
+    """Contiguous tile ranges with about equal pair counts, two per torch thread (one range on one thread)."""
+    n = min(torch.get_num_threads(), n_tiles)
+    if n <= 1:
+        return [(0, n_tiles)]
+    ends = (bins.tile_start + bins.tile_count).tolist()  # pairs up to the end of each tile
+    total, parts = ends[-1], 2 * n
+    cuts = [0] + [bisect.bisect_left(ends, total * k / parts) + 1 for k in range(1, parts)] + [n_tiles]
+    return [(a, b) for a, b in zip(cuts, cuts[1:]) if a < b]
+
+
+def _over_tiles(fn, args: tuple, ranges: list[tuple[int, int]]) -> None:
+    """fn(*args, t0, t1) for each tile range: on torch's thread count of Python threads (ctypes releases the
+    GIL during the call), inline for one range. A non-zero return is an error."""
+    if len(ranges) == 1:
+        codes = [fn(*args, *ranges[0])]
+    else:
+        n = torch.get_num_threads()
+        pool = _POOLS.get((os.getpid(), n))
+        if pool is None:
+            pool = _POOLS[(os.getpid(), n)] = ThreadPoolExecutor(n, thread_name_prefix="trioman-raster")
+        codes = list(pool.map(lambda r: fn(*args, *r), ranges))
+    if any(codes):
+        raise RuntimeError(f"the C rasterizer kernel failed (codes {codes})")
+
+
 class _NativeRaster(torch.autograd.Function):
     """``_Raster``'s forward and backward in C (raster_cpu.c), float32 on the CPU: gq [M, 10] float64,
     radii [M, 2] float64, the bins, the tile side s -> color [T, 4, s^2], T_final [T, s^2] (float32)."""
@@ -302,9 +334,10 @@ class _NativeRaster(torch.autograd.Function):
         last = torch.empty(n_tiles, s * s, dtype=torch.int32)  # list position where each pixel stopped
         scene = (gq.detach().contiguous(), radii.to(torch.float64).contiguous(), bins.pair_gauss.contiguous(),
                  bins.tile_start.contiguous(), bins.tile_count.contiguous())
-        lib.raster_forward(*map(_ptr, scene), bins.tiles_x, bins.tiles_y, s, width, height, torch.get_num_threads(),
-                           _ptr(color), _ptr(T_final), _ptr(last))
-        ctx.scene, ctx.dims, ctx.lib = scene, (bins.tiles_x, bins.tiles_y, s, width, height), lib
+        args = (*map(_ptr, scene), bins.tiles_x, s, width, height)
+        ranges = _tile_ranges(bins, n_tiles)
+        _over_tiles(lib.raster_forward, args, [r + (_ptr(color), _ptr(T_final), _ptr(last)) for r in ranges])
+        ctx.scene, ctx.args, ctx.ranges, ctx.lib = scene, args, ranges, lib
         ctx.save_for_backward(T_final, last)
         return color, T_final
 
@@ -315,10 +348,11 @@ class _NativeRaster(torch.autograd.Function):
             T_final, last = ctx.saved_tensors
             gq, pair_gauss = ctx.scene[0], ctx.scene[2]
             g_color, g_T = g_color.to(_F32).contiguous(), g_T.to(_F32).contiguous()
-            g_pair = torch.empty(pair_gauss.shape[0], 10, dtype=torch.float64)  # per pair, scratch
+            g_pair = torch.empty(pair_gauss.shape[0], 10, dtype=torch.float64)  # per pair, each written once
+            out = tuple(map(_ptr, (T_final, last, g_color, g_T, g_pair)))
+            _over_tiles(ctx.lib.raster_backward, ctx.args, [r + out for r in ctx.ranges])
             g_gq = torch.zeros_like(gq)
-            ctx.lib.raster_backward(*map(_ptr, ctx.scene), *ctx.dims, torch.get_num_threads(), _ptr(T_final),
-                                    _ptr(last), _ptr(g_color), _ptr(g_T), _ptr(g_pair), _ptr(g_gq))
+            ctx.lib.raster_sum_pairs(_ptr(pair_gauss), pair_gauss.shape[0], _ptr(g_pair), _ptr(g_gq))
         return (g_gq,) + (None,) * 6
 
 
