@@ -52,7 +52,7 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
                  steps: int, warmup: int = 2) -> list[dict]:
     """Seconds per stage of one training step (the loop's own step, on the subject's training frames resized
     to each size), the mean of ``steps`` steps after ``warmup``. -> one row per (size, threads): size,
-    threads, gaussians, step_s (wall time of the whole step), stages {name: s}; "other" is the step's time
+    threads, gaussians, rasterizer ("C kernel" or "torch"), step_s (wall time of the whole step), stages {name: s}; "other" is the step's time
     outside the marks (sampling a frame, the PSNR, the finite checks)."""
     import torch
 
@@ -63,10 +63,12 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.data import load_frames
     from trioman.toolkit.loops.guard import StepGuard
+    from trioman.toolkit.render import native
     from trioman.toolkit.train.loop import param_groups, train_step
 
     subject = load_subject(subject_dir)
     cfg = preset(preset_name)
+    rasterizer = "C kernel" if native.load() is not None else "torch"  # what rasterize's "auto" runs on the CPU
     previous = torch.get_num_threads()
     rows = []
     try:
@@ -89,7 +91,7 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
                 stages = {name: record.get(name, 0.0) / steps for name in STAGES}
                 stages["other"] = wall / steps - sum(stages.values())
                 rows.append({"size": frames.width, "threads": n_threads, "gaussians": model.num_gaussians,
-                             "step_s": wall / steps, "stages": stages})
+                             "rasterizer": rasterizer, "step_s": wall / steps, "stages": stages})
     finally:
         torch.set_num_threads(previous)
     return rows
@@ -309,8 +311,8 @@ def step_profile_markdown(rows: list[dict]) -> list[str]:
     """The step profile as markdown lines: milliseconds per stage, one column per (size, threads) row."""
     names = list(rows[0]["stages"])
     lines = ["", "## One quick-preset training step, by stage", "",
-             f"Milliseconds per step, the mean of the timed steps ({rows[0]['gaussians']} Gaussians); \"backward\" "
-             "excludes the rasterizer's backward, shown on its own.", "",
+             f"Milliseconds per step, the mean of the timed steps ({rows[0]['gaussians']} Gaussians, rasterizer: "
+             f"{rows[0]['rasterizer']}); \"backward\" excludes the rasterizer's backward, shown on its own.", "",
              "| stage | " + " | ".join(f"{r['size']} px, {r['threads']} thr" for r in rows) + " |",
              "|---|" + "---|" * len(rows)]
     for name in names:

@@ -31,5 +31,7 @@ def test_bench_train_writes_curves_holes_and_report(tmp_path):
         assert abs(sum(row["stages"].values()) - row["step_s"]) < 1e-9 and row["stages"]["rasterizer backward"] > 0
     md = (out / "train.md").read_text()
     assert "holes at 512 px" in md and "2: " in md and "| rasterizer backward |" in md
+    assert {row["rasterizer"] for row in report["step_profile"]} <= {"C kernel", "torch"}
+    assert f"rasterizer: {report['step_profile'][0]['rasterizer']})" in md
     for name in ("train_psnr_vs_time.png", "render_quick_512.png", "step_profile.png"):
         assert (out / name).stat().st_size > 1000
