@@ -12,6 +12,7 @@ fails, :func:`load` warns once and returns None, and the renderer keeps its torc
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import os
 import shlex
@@ -50,12 +51,16 @@ def load() -> ctypes.CDLL | None:
     """The kernel library (built when missing), or None when ``TRIOMAN_NATIVE=0`` or it cannot be built."""
     if os.environ.get(ENV_SWITCH, "1") == "0":
         return None
-    command = compiler_command(Path("OUT"))
-    digest = hashlib.sha256(SOURCE.read_bytes() + "\0".join(command).encode()).hexdigest()
-    name = f"{digest}.so"
-    if name not in _loaded:
-        _loaded[name] = _build_and_load(cache_dir() / name)
-    return _loaded[name]
+    path = cache_dir() / _library_name(tuple(compiler_command(Path("OUT"))))
+    if path.name not in _loaded:
+        _loaded[path.name] = _build_and_load(path)
+    return _loaded[path.name]
+
+
+@functools.lru_cache
+def _library_name(command: tuple[str, ...]) -> str:
+    """<sha256 of the source and the compiler command>.so (the source read once per process and command)."""
+    return hashlib.sha256(SOURCE.read_bytes() + "\0".join(command).encode()).hexdigest() + ".so"
 
 
 def _build_and_load(path: Path) -> ctypes.CDLL | None:
