@@ -16,7 +16,7 @@ from tqdm import tqdm
 from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.image_io import atomic_write_text, write_png, write_video
 from trioman.runtime.preview import contact_sheet
-from trioman.toolkit.avatar.model import GaussianAvatar
+from trioman.toolkit.avatar.model import GaussianAvatar, PoseFree
 from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.metrics import METRIC_KEYS, evaluate_pair
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint
@@ -54,11 +54,11 @@ def load_run(run: str | Path, checkpoint: str | Path | None = None) -> tuple[Gau
 
 @torch.no_grad()
 def render_frame(model: GaussianAvatar, subject: Subject, i: int, background: torch.Tensor = WHITE,
-                 true_pose: bool = False) -> np.ndarray:
+                 true_pose: bool = False, pose_free: PoseFree | None = None) -> np.ndarray:
     """The avatar (refined set) at frame i's pose (``true_pose``: the recorded ground truth, poses_true) and
-    camera, full resolution. -> [H, W, 3] float32."""
+    camera, full resolution; ``pose_free``: ``model.pose_free()``, for many frames. -> [H, W, 3] float32."""
     poses = subject.poses if not true_pose else subject.poses_true
-    out = model(torch.from_numpy(np.array(poses[i])), torch.from_numpy(np.array(subject.trans[i])))
+    out = model(torch.from_numpy(np.array(poses[i])), torch.from_numpy(np.array(subject.trans[i])), pose_free)
     img = render(out.refined, torch.from_numpy(np.array(subject.viewmat[i])), torch.from_numpy(np.array(subject.K[i])),
                  subject.width, subject.height, background)
     return img.clamp(0, 1).numpy()
@@ -94,8 +94,10 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
         raise ValueError(f"split: subject {subject.root} has no {split!r} frames")
     rows, triplets = [], []
     picks = set(idx[np.linspace(0, len(idx) - 1, min(grid_frames, len(idx))).astype(int)].tolist())
+    with torch.no_grad():
+        pose_free = model.pose_free()
     for i in tqdm(idx, desc=f"eval {split}", unit="frame", disable=None if progress else True):
-        pred = render_frame(model, subject, int(i), true_pose=poses == "true")
+        pred = render_frame(model, subject, int(i), true_pose=poses == "true", pose_free=pose_free)
         mask = subject.mask(int(i))
         gt = subject.image(int(i)) + (1 - mask)[..., None]  # premultiplied GT over white
         m = evaluate_pair(pred, gt, mask, lpips=lpips)

@@ -99,10 +99,12 @@ def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> P
     n, H, W = subject.num_frames, subject.height, subject.width
     arrays = {k: np.empty((n, H, W, 3), np.uint8) for k in ("gt", "coarse", "normal")}
     arrays["mask"] = np.empty((n, H, W), np.uint8)
+    with torch.no_grad():
+        pose_free = model.pose_free()
     for i in tqdm(range(n), desc="triplets", unit="frame", disable=None if progress else True):
         arrays["gt"][i] = _u8(subject.image(i))
         arrays["mask"][i] = _u8(subject.mask(i))
-        arrays["coarse"][i] = _u8(render_frame(model, subject, i, torch.from_numpy(bg)))
+        arrays["coarse"][i] = _u8(render_frame(model, subject, i, torch.from_numpy(bg), pose_free=pose_free))
         nm = body_normal_map(subject.body, subject.poses[i], subject.trans[i], subject.viewmat[i], subject.K[i], W, H)
         arrays["normal"][i] = _u8(nm.rgb)
     meta = {"version": TRIPLETS_VERSION, "subject": str(subject.root), "run": str(run), "step": step,
@@ -147,13 +149,14 @@ def build_draw_triplets(run: str | Path, out: str | Path, draws: int = 2, seed: 
     arrays.update(mask=np.empty((n, H, W), np.uint8), valid=np.empty((n, H, W), np.uint8))
     frame, yaw_pose, yaw_view = np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 4, 4))
     with torch.no_grad():
+        pose_free = model.pose_free()
         for r in tqdm(range(n), desc="draw triplets", unit="draw", disable=None if progress else True):
             p = r // draws
             i = int(train[p])
             c = sample(subject.body.skeleton, np.asarray(subject.poses[i]), np.asarray(subject.trans[i]),
                        np.asarray(subject.viewmat[i]), rng, 1, gen)[0]
             K = np.asarray(subject.K[i], np.float64)
-            coarse, _ = render_candidate(model, c, torch.from_numpy(K.astype(np.float32)), W, H, bg)
+            coarse, _ = render_candidate(model, c, torch.from_numpy(K.astype(np.float32)), W, H, bg, pose_free)
             rgb, mask = truth.at_draw(i, c, K)
             a = aligner.align(p, c.pose, c.trans, c.viewmat, K, coarse)
             arrays["gt"][r], arrays["mask"][r] = _u8(rgb + (1.0 - mask)[..., None] * bg), _u8(mask)

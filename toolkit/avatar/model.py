@@ -79,6 +79,15 @@ class AvatarOutput(NamedTuple):
     delta_rgb: torch.Tensor  # [N, 3] pose-dependent colour logits (zeros without pose dependence)
 
 
+class PoseFree(NamedTuple):
+    """What a forward pass computes before it reads the pose (``GaussianAvatar.pose_free``)."""
+
+    geo: torch.Tensor  # [N, 3 + S (+ 4 anisotropic)] the geometry MLP's output: offset, log scale (, rotation)
+    rgb_logit: torch.Tensor  # [N, 3] pose-independent colour logits
+    pose_layers: list[torch.Tensor] | None  # the pose MLPs' first layers on the point features, [M, H] x 2 (None
+    # without pose dependence)
+
+
 def _mlp(in_dim: int, hidden: int, out_dim: int, layers: int = 2) -> nn.Sequential:
     mods: list[nn.Module] = []
     d = in_dim
@@ -258,16 +267,26 @@ class GaussianAvatar(nn.Module):
                 cache[name] = (key, (coo.to_sparse_csr(), coo.t().coalesce().to_sparse_csr()))
         return cache[name][1]
 
-    def forward(self, pose: torch.Tensor, trans: torch.Tensor) -> AvatarOutput:
-        """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined)."""
+    def pose_free(self) -> PoseFree:
+        """The triplane and the MLPs up to the pose: computed once, it serves ``forward`` at any number of poses
+        while the weights do not change (renders without grad: an augmentation snapshot, an evaluation)."""
+        z = self._first_layers()
+        pose_layers = None
+        if self.cfg.pose_dependent:
+            pose_layers = z[2:] if not self.coarse_pose else self._point_layers("pose", self.pose_points, self._pose_first_layers())
+        return PoseFree(self.geo_net[1:](z[0]), self._with_point_rgb(self.rgb_net[1:](z[1])), pose_layers)
+
+    def forward(self, pose: torch.Tensor, trans: torch.Tensor, pose_free: PoseFree | None = None) -> AvatarOutput:
+        """pose: [J, 3], trans: [3] -> world-space Gaussians (plain and refined). pose_free: ``self.pose_free()``
+        of the current weights, when already computed."""
         with stage("triplane + MLPs"):
-            z = self._first_layers()
-            geo = self.geo_net[1:](z[0])
+            c = self.pose_free() if pose_free is None else pose_free
+            geo = c.geo
             s = 3 if self.cfg.anisotropic else 1
             offset, log_scale = geo[:, :3], geo[:, 3 : 3 + s]
-            rgb_logit = self._with_point_rgb(self.rgb_net[1:](z[1]))
+            rgb_logit = c.rgb_logit
             if self.cfg.pose_dependent:
-                deltas = self.pose_deltas(self.pose_features(pose), None if self.coarse_pose else z[2:])
+                deltas = self.pose_deltas(self.pose_features(pose), c.pose_layers)
                 d_offset, d_log_scale, d_rgb = self.carry_pose_deltas(deltas).split([3, s, 3], dim=1)
             else:
                 d_offset = torch.zeros_like(offset)

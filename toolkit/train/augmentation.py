@@ -27,7 +27,7 @@ from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.formats import Subject
 from trioman.runtime.generator import CameraDelta, Candidate, GeneratorConfig, sample
 from trioman.runtime.pseudo_gt import KINDS, MASKS, STAGES, PseudoConfig, Source, make_pseudo_frames, needs_aligner
-from trioman.toolkit.avatar.model import GaussianAvatar
+from trioman.toolkit.avatar.model import GaussianAvatar, PoseFree
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.data import FrameSet
 
@@ -154,6 +154,7 @@ class Augmenter:
             self.truth = TruthRenderer(subject)
         self.entries: list[dict[str, Any]] | None = None  # the pool: made frames and pending draws (_pending)
         self.snapshot: GaussianAvatar | None = None  # the avatar at the last rebuild: renders the pending entries
+        self.pose_free: PoseFree | None = None  # the snapshot's pose-independent part, made with the first entry
         self.stats: dict[str, Any] = {"rebuilds": 0, "entries": 0, "pseudo_steps": 0, "candidates": 0, "kept": 0,
                                       "dropped": 0, "score_sum": 0.0, "scored": 0, "coverage_sum": 0.0, "aligned": 0,
                                       "seconds": dict.fromkeys(STAGES, 0.0)}
@@ -196,6 +197,7 @@ class Augmenter:
         if self.snapshot is None:
             self.snapshot = GaussianAvatar(self.subject.body, model.cfg).requires_grad_(False)
         self.snapshot.load_state_dict(model.state_dict())
+        self.pose_free = None
         t = time.perf_counter()
         self.entries = []
         f = self.frames
@@ -212,13 +214,17 @@ class Augmenter:
     def _make(self, i: int, cands: list[Candidate]) -> dict[str, torch.Tensor] | None:
         """The pool frame of source frame ``i``'s candidates, rendered by the snapshot; None when dropped."""
         sec = self.stats["seconds"]
+        if self.pose_free is None:
+            t = time.perf_counter()
+            self.pose_free = self.snapshot.pose_free()
+            sec["render"] += time.perf_counter() - t
         f, bg = self.frames, self.background
         W, H = f.width, f.height
         real_mask = f.mask(i).numpy()
         real = f.image(i).numpy() + (1.0 - real_mask)[..., None] * bg  # I^T over the subject's background
         source = Source(i, real.astype(np.float32), f.K[i].numpy(), bg)
         truth = None if self.truth is None else (lambda c, K: self.truth.at_draw(int(f.indices[i]), c, K))
-        made = make_pseudo_frames(cands, source, lambda c: render_candidate(self.snapshot, c, f.K[i], W, H, bg),
+        made = make_pseudo_frames(cands, source, lambda c: render_candidate(self.snapshot, c, f.K[i], W, H, bg, self.pose_free),
                                   self.pseudo_cfg, body=self.subject.body, aligner=self.aligner, refiner=self.refiner,
                                   examiner=self.examiner, truth=truth, seconds=sec)
         self.stats["candidates"] += len(cands)
@@ -264,6 +270,7 @@ class Augmenter:
         if state.get("snapshot") is not None:
             self.snapshot = GaussianAvatar(self.subject.body, model.cfg).requires_grad_(False)
             self.snapshot.load_state_dict(state["snapshot"])
+            self.pose_free = None
         for e in self.entries or []:
             if "images" in e and "pixel_weights" not in e:  # a checkpoint from before per-pixel weights
                 e["pixel_weights"] = torch.ones_like(e["masks"])
@@ -298,10 +305,11 @@ def _candidates_from_json(text: str) -> list[Candidate]:
 
 @torch.no_grad()
 def render_candidate(model: GaussianAvatar, c: Any, K: torch.Tensor, width: int, height: int,
-                     background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                     background: np.ndarray, pose_free: PoseFree | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The avatar (refined set) at a Generator candidate's pose and camera over ``background``:
-    -> (rgb [H, W, 3], alpha [H, W]) float32 in [0, 1]. K: [3, 3]."""
-    g = model(torch.from_numpy(c.pose.astype(np.float32)), torch.from_numpy(c.trans.astype(np.float32))).refined
+    -> (rgb [H, W, 3], alpha [H, W]) float32 in [0, 1]. K: [3, 3]; pose_free: ``model.pose_free()``, for many
+    candidates."""
+    g = model(torch.from_numpy(c.pose.astype(np.float32)), torch.from_numpy(c.trans.astype(np.float32)), pose_free).refined
     r = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, torch.from_numpy(c.viewmat.astype(np.float32)),
                   K, width, height, background=torch.from_numpy(background))
     return r.rgb.clamp(0, 1).numpy(), r.alpha.clamp(0, 1).numpy()

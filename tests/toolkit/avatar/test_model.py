@@ -165,6 +165,24 @@ def test_coarse_pose_mlps_match_the_brute_force_reference(level, subdivisions, a
         torch.testing.assert_close(grads_f[name], grads_r[name], atol=1e-5 * scale, rtol=0, msg=name)
 
 
+@pytest.mark.parametrize("options", [dict(pose_dependent=False), dict(), dict(anisotropic=True),
+                                     dict(subdivisions=1, pose_subdivisions=0)])
+def test_pose_free_part_computed_once_serves_every_pose(options):
+    """forward(pose, trans, model.pose_free()) gives what forward(pose, trans) gives, bit for bit, at poses and
+    translations drawn anew for each call."""
+    mesh = grid_mesh()
+    model = _perturbed(GaussianAvatar(mesh, AvatarConfig(**SMALL, **options)))
+    gen = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        pose_free = model.pose_free()
+        for _ in range(3):
+            pose, trans = torch.randn(4, 3, generator=gen), torch.randn(3, generator=gen)
+            got, want = model(pose, trans, pose_free), model(pose, trans)
+            for a, b in zip(got.plain + got.refined + got[2:], want.plain + want.refined + want[2:]):
+                assert torch.equal(a, b)
+    assert float((got.delta_offset.abs().max())) > 0 or not model.cfg.pose_dependent
+
+
 def test_pose_subdivisions_option():
     """Checked; not in the state dict (derived from the mesh); old configs (without the field) keep the
     pose MLPs at the Gaussians; the full preset runs them on the body mesh's own vertices."""
