@@ -28,7 +28,10 @@ pseudo-GT keeping only its detail (``--augment-detail-sigma S``, runtime.generat
 
 An augmented run takes ``iterations / (start + (1 - start) (1 - share))`` steps, so that it trains on
 as many real frames as the baseline plus its pseudo-GT steps; ``baseline_long`` has that length.
-A finished run (and its evaluation) is reused, so an interrupted benchmark resumes where it stopped.
+A finished run (and its evaluation) is reused, so an interrupted benchmark resumes where it stopped. The runs of
+one seed as long as an augmented run (the control and the augmented rows) fork from one shared real-frame warm-up,
+the control's first ``start`` steps trained once (toolkit/train/fork.py: the same weights as from scratch, bit
+for bit), so each trains that many steps fewer.
 
 Also measured: whether the tex+geo and warp+geo Refiners use their conditions (held-out test triplets refined
 with the true reference and normal map; with another subject's reference frame (tex+geo) or nothing carried,
@@ -42,6 +45,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -214,36 +218,101 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
-def _train_run(subject: str, run: str, cfg, threads: int, with_lpips: bool) -> None:
-    """One avatar run in a worker process of ``train_in_parallel``, with ``threads`` torch threads."""
-    from trioman.toolkit.lpips import load_lpips
+@dataclass(frozen=True)
+class Job:
+    """One avatar run to train: from scratch, or forked from ``fork`` = (warm-up run, step) when it is not
+    there yet (toolkit/train/fork.py); ``stop_after``: a warm-up stops at its step."""
+
+    subject: Path
+    run: Path
+    cfg: object  # TrainConfig
+    fork: tuple[Path, int] | None = None
+    stop_after: int | None = None
+
+
+def run_job(job: Job, lpips=None) -> None:
+    """Train ``job``'s run (resumed when it is there, forked first when it is not and ``job.fork`` says from where)."""
+    from trioman.toolkit.train.fork import fork_run
     from trioman.toolkit.train.loop import train
 
+    if job.fork is not None and not (job.run / "config.json").exists():
+        fork_run(job.fork[0], job.run, job.cfg, job.fork[1])
+    train(job.subject, job.run, job.cfg, resume=(job.run / "config.json").exists(), progress=False, lpips=lpips,
+          stop_after=job.stop_after)
+
+
+def _train_run(job: Job, threads: int, with_lpips: bool) -> None:
+    """One avatar run in a worker process of ``train_in_parallel``, with ``threads`` torch threads."""
+    from trioman.toolkit.lpips import load_lpips
+
     torch.set_num_threads(threads)
-    train(Path(subject), Path(run), cfg, resume=(Path(run) / "config.json").exists(), progress=False,
-          lpips=load_lpips() if with_lpips else None)
+    run_job(job, load_lpips() if with_lpips else None)
 
 
-def train_in_parallel(todo: list[tuple[Path, Path, object]], jobs: int, with_lpips: bool) -> None:
-    """Train the runs ``todo`` [(subject, run folder, TrainConfig)] in ``jobs`` worker processes, each with an
-    equal share of the cores (at least one thread); one line per finished run. A failed run stops the others
-    not yet started and is raised naming its folder (the finished ones stay; a rerun resumes the rest)."""
+def train_in_parallel(todo: list[Job], jobs: int, with_lpips: bool) -> None:
+    """Train the runs ``todo`` in ``jobs`` worker processes, each with an equal share of the cores (at least one
+    thread); a forked run starts once the warm-up it forks from is done (warm-ups are ``todo``'s jobs that
+    stop early, started first); one line per finished run. A failed run stops the others not yet started and
+    is raised naming its folder (the finished ones stay; a rerun resumes the rest)."""
     import concurrent.futures
     import multiprocessing
     import os
 
     threads = max(1, (os.cpu_count() or 1) // jobs)
     t = time.perf_counter()
+    pending = sorted(todo, key=lambda j: j.stop_after is None)  # warm-ups first
+    warming = {j.run for j in todo if j.stop_after is not None}
     ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch thread pools
     with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
-        running = {pool.submit(_train_run, str(s), str(r), cfg, threads, with_lpips): r for s, r, cfg in todo}
-        for done, future in enumerate(concurrent.futures.as_completed(running), 1):
-            run = running[future]
-            if future.exception() is not None:
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise RuntimeError(f"bench ablation: run {run} failed: {future.exception()}") from future.exception()
-            print(f"bench ablation: trained {run.parent.name}/{run.name} ({done}/{len(todo)}, {jobs} jobs x {threads} "
-                  f"threads, {time.perf_counter() - t:.0f} s so far)", flush=True)
+        running: dict = {}
+        done = 0
+
+        def submit_ready() -> None:
+            for job in [j for j in pending if j.fork is None or j.fork[0] not in warming]:
+                pending.remove(job)
+                running[pool.submit(_train_run, job, threads, with_lpips)] = job
+
+        submit_ready()
+        while running:
+            finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+            for future in finished:
+                job = running.pop(future)
+                if future.exception() is not None:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    raise RuntimeError(f"bench ablation: run {job.run} failed: {future.exception()}") from future.exception()
+                done += 1
+                warming.discard(job.run)
+                what = "warmed up" if job.stop_after is not None else "trained"
+                print(f"bench ablation: {what} {job.run.parent.name}/{job.run.name} ({done}/{len(todo)}, {jobs} jobs x "
+                      f"{threads} threads, {time.perf_counter() - t:.0f} s so far)", flush=True)
+            submit_ready()
+
+
+def plan_jobs(plan: AblationPlan, out: Path, subjects: dict[str, Path], models: dict[str, Path], only: set[str] | None,
+              threads: int) -> list[Job]:
+    """The runs of ``subjects`` {held-out name: regime subject folder} still to train (``only`` those variants),
+    warm-ups first: the runs of one subject and seed as long as an augmented run, two or more of them not yet
+    started, fork from one shared real-frame warm-up (the control's first ``start`` steps, trained once with
+    ``threads`` torch threads, the count the forks train with; toolkit/train/fork.py)."""
+    from trioman.toolkit.corpus import finished
+
+    step = int(round(plan.start * plan.augmented_iterations))
+    warmups, jobs = [], []
+    for h, subject in subjects.items():
+        runs = [(v, seed, plan.run(out, h, v, seed)) for v, seed in _variant_runs(plan) if only is None or v in only]
+        runs = [(v, seed, r) for v, seed, r in runs if not finished(r, _iterations(v, plan))]
+        for seed in sorted({seed for _, seed, _ in runs}):
+            fresh = [r for v, s, r in runs if s == seed and _iterations(v, plan) == plan.augmented_iterations
+                     and not (r / "config.json").exists()]
+            warm = None
+            if len(fresh) >= 2:
+                warm = out / "runs" / (h + plan.capture) / f"warmup_s{seed}_{threads}t"
+                if not finished(warm, step):
+                    cfg = dataclasses.replace(_train_config("baseline_long", seed, plan, models), checkpoint_every=step)
+                    warmups.append(Job(subject, warm, cfg, stop_after=step))
+            jobs += [Job(subject, r, _train_config(v, seed, plan, models), (warm, step) if warm and r in fresh else None)
+                     for v, s, r in runs if s == seed]
+    return warmups + jobs
 
 
 def _iterations(name: str, plan: AblationPlan) -> int:
@@ -358,7 +427,6 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     models, model_info = _trained_models(out) if report_only else _models(corpus, out, config, keys)
     print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
     from trioman.toolkit.corpus import finished
-    from trioman.toolkit.train.loop import train
 
     missing: list[str] = []
     lpips = load_lpips_or_say_why("bench ablation")
@@ -366,11 +434,16 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     truth: dict[str, dict] = {}
     poses = "true" if plan.pose_noise > 0 else "stored"
     subjects = {h: regime_subject(corpus / "subjects" / h, out, plan) for h in names}
-    if config.jobs > 1 and not report_only:
-        todo = [(subjects[h], plan.run(out, h, v, seed), _train_config(v, seed, plan, models))
-                for h in names for v, seed in _variant_runs(plan)
-                if (only is None or v in only) and not finished(plan.run(out, h, v, seed), _iterations(v, plan))]
-        train_in_parallel(todo, config.jobs, lpips is not None)
+    if not report_only:
+        threads = max(1, (os.cpu_count() or 1) // config.jobs) if config.jobs > 1 else torch.get_num_threads()
+        todo = plan_jobs(plan, out, subjects, models, only, threads)
+        if config.jobs > 1:
+            train_in_parallel(todo, config.jobs, lpips is not None)
+        else:
+            for k, job in enumerate(todo, 1):
+                run_job(job, lpips)
+                print(f"bench ablation: {'warmed up' if job.stop_after else 'trained'} {job.run.parent.name}/{job.run.name} "
+                      f"({k}/{len(todo)}, {time.perf_counter() - t0:.0f} s so far)", flush=True)
     for heldout_name in names:
         name = heldout_name + plan.regime
         subject = subjects[heldout_name]
@@ -379,11 +452,8 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
             t = time.perf_counter()
             run = plan.run(out, heldout_name, variant, seed)
             if not finished(run, _iterations(variant, plan)):
-                if report_only or (only is not None and variant not in only):
-                    missing.append(f"{run.parent.name}/{run.name}")
-                    continue
-                train(subject, run, _train_config(variant, seed, plan, models), resume=(run / "config.json").exists(),
-                      progress=False, lpips=lpips)
+                missing.append(f"{run.parent.name}/{run.name}")
+                continue
             r = _evaluated(run, _iterations(variant, plan), lpips, poses)
             results[name].setdefault(variant, {})[str(seed)] = r
             print(f"bench ablation: {name} {variant} seed {seed}: test PSNR {r['psnr']:.2f} dB "

@@ -137,21 +137,26 @@ def test_jobs_train_the_runs_in_worker_processes(corpus, tmp_path, capsys):
     """--jobs 2: the rows train in two spawned processes, then evaluate as when trained in this one."""
     out = tmp_path / "bench"
     argv = ["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--size", "32", "--iterations", "2",
-            "--seeds", "1", "--refiner-steps", "2", "--batch", "2", "--crop", "16", "--variants", "baseline,G", "--jobs", "2"]
+            "--seeds", "1", "--refiner-steps", "2", "--batch", "2", "--crop", "16", "--variants", "baseline,baseline_long,G", "--jobs", "2"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
-    assert printed.count("bench ablation: trained s02/") == 2 and "2 jobs x" in printed
+    assert printed.count("bench ablation: trained s02/") == 3 and "2 jobs x" in printed
+    # the control and G share the control's first steps: trained once, then forked (toolkit/train/fork.py)
+    assert printed.count("bench ablation: warmed up s02/warmup_s0_") == 1
+    for v in ("baseline_long_s0", "G_s0"):
+        assert json.loads((out / "runs" / "s02" / v / "config.json").read_text())["forked_from"]["step"] == 1
+    assert "forked_from" not in json.loads((out / "runs" / "s02" / "baseline_s0" / "config.json").read_text())
     r = json.loads((out / "ablation.json").read_text())
-    assert set(r["results"]["s02"]) == {"baseline", "G"}
+    assert set(r["results"]["s02"]) == {"baseline", "baseline_long", "G"}
     assert r["results"]["s02"]["G"]["0"]["augment"]["mode"] == "coarse" and r["results"]["s02"]["G"]["0"]["iterations"] == 3
 
 
 def test_a_failed_worker_run_is_named(tmp_path):
-    from trioman.bench.ablation import train_in_parallel
+    from trioman.bench.ablation import Job, train_in_parallel
     from trioman.toolkit.train.config import preset
 
     with pytest.raises(RuntimeError, match="run .*missing_run failed"):
-        train_in_parallel([(tmp_path / "no_subject", tmp_path / "missing_run", preset("quick", iterations=1))], 2, False)
+        train_in_parallel([Job(tmp_path / "no_subject", tmp_path / "missing_run", preset("quick", iterations=1))], 2, False)
 
 
 def test_summary_verdicts_follow_the_numbers():

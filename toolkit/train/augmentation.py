@@ -140,7 +140,7 @@ class Augmenter:
             self.refiner.check_size(frames.height, frames.width)
         use_examiner = cfg.mode == "examined" and (cfg.candidates > 1 or cfg.threshold is not None)
         self.examiner = load_pseudo_examiner(cfg.examiner) if use_examiner else None
-        self.rng = np.random.default_rng([int(seed), 0xA06])  # apart from the real-frame draws
+        self.rng = _own_rng(seed)
         self.background = subject.background.astype(np.float32)
         self.aligner = None
         if needs_aligner(self.pseudo_cfg, None if self.refiner is None else self.refiner.conditions):
@@ -155,9 +155,7 @@ class Augmenter:
         self.entries: list[dict[str, Any]] | None = None  # the pool: made frames and pending draws (_pending)
         self.snapshot: GaussianAvatar | None = None  # the avatar at the last rebuild: renders the pending entries
         self.pose_free: PoseFree | None = None  # the snapshot's pose-independent part, made with the first entry
-        self.stats: dict[str, Any] = {"rebuilds": 0, "entries": 0, "pseudo_steps": 0, "candidates": 0, "kept": 0,
-                                      "dropped": 0, "score_sum": 0.0, "scored": 0, "coverage_sum": 0.0, "aligned": 0,
-                                      "seconds": dict.fromkeys(STAGES, 0.0)}
+        self.stats: dict[str, Any] = _fresh_stats()
 
     # ---- schedule
 
@@ -248,6 +246,12 @@ class Augmenter:
 
     # ---- checkpoints
 
+    @staticmethod
+    def initial_state(seed: int) -> dict[str, Any]:
+        """``state_dict()`` of a run's Augmenter before its first rebuild (no models loaded)."""
+        return {"rng": json.dumps(_own_rng(seed).bit_generator.state), "stats": json.dumps(_fresh_stats()),
+                "entries": None, "snapshot": None}
+
     def state_dict(self) -> dict[str, Any]:
         pending = self.entries is not None and any("images" not in e for e in self.entries)
         entries = None if self.entries is None else [
@@ -289,6 +293,16 @@ class Augmenter:
                 "mean_kept_score": s["score_sum"] / s["scored"] if s["scored"] else None,
                 "mean_body_coverage": s["coverage_sum"] / s["aligned"] if s["aligned"] else None,
                 "seconds": s["seconds"], "ms_per_step": {k: 1e3 * v / max(steps, 1) for k, v in s["seconds"].items()}}
+
+
+def _own_rng(seed: int) -> np.random.Generator:
+    """The augmentation's random state, apart from the real-frame draws."""
+    return np.random.default_rng([int(seed), 0xA06])
+
+
+def _fresh_stats() -> dict[str, Any]:
+    return {"rebuilds": 0, "entries": 0, "pseudo_steps": 0, "candidates": 0, "kept": 0, "dropped": 0,
+            "score_sum": 0.0, "scored": 0, "coverage_sum": 0.0, "aligned": 0, "seconds": dict.fromkeys(STAGES, 0.0)}
 
 
 def _candidates_json(cands: list[Candidate]) -> str:
