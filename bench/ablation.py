@@ -7,7 +7,7 @@ those models never saw, and evaluated on their test split (novel poses from nove
 Variants, per held-out subject (``VARIANTS``), all from the quick preset:
 
     baseline        real frames only, ``iterations`` steps (seeds 0 .. seeds-1)
-    baseline_long   equal-compute control: real frames only, as many steps as an augmented run
+    baseline_long   equal-compute control: real frames only, as many steps as an augmented run (seeds)
     G               + Generator: online pseudo-GT = the avatar's own coarse renders (--augment coarse)
     aligned         the render with real pixels carried through the body mesh, no learned model (--augment aligned)
     GR_none/tex/tex+geo   + Refiner under each of the paper's conditions (--augment refined)
@@ -44,8 +44,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import time
 import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,7 +56,7 @@ import torch
 # (name, augment mode, refiner condition, seeded): the order of the report's rows.
 VARIANTS = (
     ("baseline", None, None, True),
-    ("baseline_long", None, None, False),
+    ("baseline_long", None, None, True),
     ("G", "coarse", None, False),
     ("aligned", "aligned", None, False),
     ("GR_none", "refined", "none", False),
@@ -230,6 +230,19 @@ class Job:
     stop_after: int | None = None
 
 
+# Relative cost of a step by augmentation mode (an augmented step also makes pseudo-GT): the order in which
+# ready runs start, longest first, so the last to finish are short and no core idles long at the end.
+_STEP_COST = {None: 1.0, "coarse": 1.2, "aligned": 1.2, "truth": 1.2, "truth_seen": 1.25, "refined": 1.35, "examined": 1.7}
+
+
+def _cost(job: Job) -> float:
+    """A run's expected time in steps: a warm-up first of all (its forks wait for it), then the longest."""
+    if job.stop_after is not None:
+        return float("inf")
+    steps = job.cfg.iterations - (job.fork[1] if job.fork else 0)
+    return steps * _STEP_COST[job.cfg.augment.mode if job.cfg.augment else None]
+
+
 def run_job(job: Job, lpips=None) -> None:
     """Train ``job``'s run (resumed when it is there, forked first when it is not and ``job.fork`` says from where)."""
     from trioman.toolkit.train.fork import fork_run
@@ -252,15 +265,15 @@ def _train_run(job: Job, threads: int, with_lpips: bool) -> None:
 def train_in_parallel(todo: list[Job], jobs: int, with_lpips: bool) -> None:
     """Train the runs ``todo`` in ``jobs`` worker processes, each with an equal share of the cores (at least one
     thread); a forked run starts once the warm-up it forks from is done (warm-ups are ``todo``'s jobs that
-    stop early, started first); one line per finished run. A failed run stops the others not yet started and
-    is raised naming its folder (the finished ones stay; a rerun resumes the rest)."""
+    stop early, started first), and of the runs ready to start the longest goes first (``_cost``); one line per
+    finished run. A failed run stops the others not yet started and is raised naming its folder (the finished
+    ones stay; a rerun resumes the rest)."""
     import concurrent.futures
     import multiprocessing
-    import os
 
     threads = max(1, (os.cpu_count() or 1) // jobs)
     t = time.perf_counter()
-    pending = sorted(todo, key=lambda j: j.stop_after is None)  # warm-ups first
+    pending = list(todo)
     warming = {j.run for j in todo if j.stop_after is not None}
     ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch thread pools
     with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
@@ -268,12 +281,13 @@ def train_in_parallel(todo: list[Job], jobs: int, with_lpips: bool) -> None:
         done = 0
 
         def submit_ready() -> None:
-            for job in [j for j in pending if j.fork is None or j.fork[0] not in warming]:
+            ready = sorted((j for j in pending if j.fork is None or j.fork[0] not in warming), key=_cost, reverse=True)
+            for job in ready[: jobs - len(running)]:
                 pending.remove(job)
                 running[pool.submit(_train_run, job, threads, with_lpips)] = job
 
         submit_ready()
-        while running:
+        while running:  # at most `jobs` runs are submitted: each start takes the longest ready run
             finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
             for future in finished:
                 job = running.pop(future)
@@ -503,8 +517,10 @@ def _mean_over_seeds(runs: dict[str, dict], key: str) -> float:
 
 
 def summarise(results: dict[str, dict]) -> dict:
-    """Per variant: the mean over subjects of the seed means (PSNR, SSIM, ...); the baseline and GRE
-    seed spreads (max - min per subject, averaged); the targets' verdicts."""
+    """Per variant: the mean over subjects of the seed means (PSNR, SSIM, ...); the baseline's, the control's
+    and GRE's seed spreads (max - min per subject, averaged); the targets' verdicts: the full system's gain over
+    the baseline against twice the larger of its and the baseline's spreads, and its gain over the equal-steps
+    control against twice the larger of its and the control's."""
     keys = ("psnr", "ssim", "lpips", "psnr_unmasked", "ssim_unmasked")
     subjects = list(results)
     variants = [v for v, *_ in ALL_VARIANTS if all(v in results[s] for s in subjects)]
@@ -512,15 +528,21 @@ def summarise(results: dict[str, dict]) -> dict:
                     if all(r[k] is not None for s in subjects for r in results[s][v].values()) else None) for k in keys}
             for v in variants}
     spread = {v: float(np.mean([np.ptp([r["psnr"] for r in results[s][v].values()]) for s in subjects]))
-              for v in ("baseline", "GRE") if v in variants and all(len(results[s][v]) > 1 for s in subjects)}
+              for v in ("baseline", "baseline_long", "GRE") if v in variants and all(len(results[s][v]) > 1 for s in subjects)}
     p = {v: mean[v]["psnr"] for v in variants}
     verdict = {}
     if {"baseline", "GRE"} <= set(p):
         gain = p["GRE"] - p["baseline"]
         verdict["full_gain_db"] = gain
         verdict["full_gain_at_least_1db"] = gain >= 1.0
-        if spread:  # one seed per run: no spread to compare with
-            verdict["gain_exceeds_twice_seed_spread"] = gain > 2 * max(spread.values())
+        pair = [spread[v] for v in ("baseline", "GRE") if v in spread]
+        if pair:  # one seed per run: no spread to compare with
+            verdict["gain_exceeds_twice_seed_spread"] = gain > 2 * max(pair)
+    if {"baseline_long", "GRE"} <= set(p):
+        verdict["control_gain_db"] = p["GRE"] - p["baseline_long"]
+        pair = [spread[v] for v in ("baseline_long", "GRE") if v in spread]
+        if "baseline_long" in spread:
+            verdict["control_gain_exceeds_twice_seed_spread"] = verdict["control_gain_db"] > 2 * max(pair)
     if {"baseline", "G", "GR_tex+geo", "GRE"} <= set(p):
         verdict["table1_order_holds"] = p["baseline"] < p["G"] < p["GR_tex+geo"] < p["GRE"]
     if {"baseline", "GR_warp+geo", "GRE", "ceiling"} <= set(p):
@@ -797,7 +819,7 @@ def ablation_markdown(r: dict) -> str:
              f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
              f"{plan['augmented_iterations']} steps; pseudo-GT from step {plan['start']:.0%} on, pool of {plan['pool']} "
              f"rebuilt every {plan['refresh']} steps, {plan['share']:.0%} of later steps on it, weight {plan['weight']}. "
-             f"Seeds 0..{plan['seeds'] - 1} for the baseline and the full system (seed means in the tables)."
+             f"Seeds 0..{plan['seeds'] - 1} for the baseline, the control and the full system (seed means in the tables)."
              + (f" Lever GRd_tex+geo: the tex+geo Refiner's pseudo-GT keeping only its detail (its change minus that change "
                 f"blurred by {plan['detail_sigma']} px)." if plan.get("detail_sigma") else ""), ""]
     if r.get("missing_runs"):
@@ -813,6 +835,10 @@ def ablation_markdown(r: dict) -> str:
                      + ", ".join(f"{k} {x:.2f} dB" for k, x in s["seed_spread_psnr"].items())
                      + f"; gain > 2 x spread: {'yes' if v['gain_exceeds_twice_seed_spread'] else 'no'}."
                      if "gain_exceeds_twice_seed_spread" in v else "; one seed per run, no seed spread.")]
+    if "control_gain_exceeds_twice_seed_spread" in v:
+        lines.append(f"Full system vs the equal-steps control: **{v['control_gain_db']:+.2f} dB**; gain > 2 x the larger of "
+                     f"the control's and the full system's seed spreads: "
+                     f"{'yes' if v['control_gain_exceeds_twice_seed_spread'] else 'no'}.")
     for key, text in (("table1_order_holds", "baseline < + G < + G&R (tex+geo) < + G&R&E"),
                       ("warp_order_holds", "baseline < + G&R (warp+geo) < + G&R&E < ceiling"),
                       ("table2_order_holds", "none < tex < tex+geo")):

@@ -177,6 +177,12 @@ def test_summary_verdicts_follow_the_numbers():
     assert summarise(one)["seed_spread_psnr"] == {"baseline": pytest.approx(0.2)}
     one["a"]["baseline"] = runs(20.0)  # no run with two seeds: no spread, no verdict on it
     assert summarise(one)["seed_spread_psnr"] == {} and "gain_exceeds_twice_seed_spread" not in summarise(one)["verdict"]
+    assert "control_gain_exceeds_twice_seed_spread" not in summarise(res)["verdict"]  # the control has one seed
+    two = {"a": {**res["a"], "baseline_long": runs(20.1, 20.5)}}  # gain over the control 1.0, its spread 0.4
+    v = summarise(two)["verdict"]
+    assert v["control_gain_db"] == pytest.approx(21.4 - 20.3) and v["control_gain_exceeds_twice_seed_spread"]
+    two["a"]["baseline_long"] = runs(20.1, 20.8)
+    assert not summarise(two)["verdict"]["control_gain_exceeds_twice_seed_spread"]  # 0.95 < 2 x 0.7
     # against the ceiling: shares of its gain over the equal-steps control, the unmasked check
     res["a"]["ceiling"] = runs(22.1)
     s = summarise(res)
