@@ -21,9 +21,8 @@ from trioman.runtime.formats import load_subject
 from trioman.toolkit.loops.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.train.loop import TRAIN_LOG
 from trioman.toolkit.train.resume import config_differences, new_record, read_record, write_record
-
-LOG = "train_log.csv"
 
 
 def fork_step(cfg: TrainConfig) -> int:
@@ -57,13 +56,11 @@ def fork_run(source: str | Path, run: str | Path, cfg: TrainConfig, step: int) -
     state["config"] = json.dumps(cfg.to_dict())
     if cfg.augment is not None:
         state["augment"] = Augmenter.initial_state(cfg.seed)
-    log = (source / LOG).read_text().splitlines(keepends=True)
-    kept = [log[0]] + [ln for ln in log[1:] if ln.strip() and int(ln.split(",")[0]) <= step]
     run.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{run.name}.", dir=run.parent))
     try:
         save_checkpoint(tmp, step, state, keep=cfg.keep_checkpoints)
-        (tmp / LOG).write_text("".join(kept))
+        shutil.copyfile(source / TRAIN_LOG, tmp / TRAIN_LOG)  # the resume trims it to the checkpoint's step
         write_record(tmp, {**new_record(load_subject(record["subject"]), cfg),
                            "forked_from": {"run": str(source.resolve()), "step": step}})
         tmp.rename(run)

@@ -29,6 +29,7 @@ from trioman.toolkit.train.data import join_frames, load_frames
 from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
+TRAIN_LOG = "train_log.csv"  # run/train_log.csv: one line per step
 AUGMENT_JSON = "augment.json"  # run/augment.json: the online augmentation's counts and stage times
 
 
@@ -162,7 +163,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         if augmenter is not None:
             augmenter.load_state_dict(loop.resumed["augment"], model)
     write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
-    log = run / "train_log.csv"
+    log = run / TRAIN_LOG
     _trim_log(log, loop.step)
 
     def checkpoint() -> None:
