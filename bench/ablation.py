@@ -72,6 +72,7 @@ VARIANTS = (
 LEVERS = (("GRd_tex+geo", "refined", "tex+geo", False),)
 ALL_VARIANTS = VARIANTS + LEVERS
 # AugmentConfig settings of a variant beyond its mode and Refiner condition.
+FUSED_TEXTURE = 256  # texels a side of the fused texture's row in the frame-level table (AlignConfig.texture)
 SETTINGS = {"GRk_warp+geo": {"keep_carried": True}, "GRE": {"keep_carried": True}}
 LABELS = {
     "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
@@ -598,7 +599,7 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     truth, render, aligned, each Refiner). -> {"frames": masked PSNR per kind, "coverage": mean share of body
     pixels holding carried real pixels, "ms_per_draw": per kind, "avatars": per finished run (seed 0) masked PSNR
     of its render and its mean signed colour error (RGB, inside the true mask)}."""
-    from trioman.runtime.aligned import Aligner, SourceViews
+    from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
     from trioman.runtime.formats import load_subject
     from trioman.runtime.generator import sample
     from trioman.runtime.image_io import write_png
@@ -619,6 +620,7 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     W, H, bg = subj.width, subj.height, subj.background.astype(np.float32)
     train = subj.indices("train")
     aligner = Aligner(subj.body, SourceViews.of_subject(subj, train))
+    fused = Aligner(subj.body, aligner.views, AlignConfig(texture=FUSED_TEXTURE))
     picked = []
     for p in rng.choice(len(train), size=draws):
         i = int(train[p])
@@ -637,7 +639,8 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
         return lambda c: render_candidate(model, c, torch.from_numpy(K.astype(np.float32)), W, H, bg)
 
     base = load_run(run_of("baseline"))[0]
-    kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None)]
+    kinds = [("coarse", PseudoConfig("coarse"), None), ("aligned (no Refiner)", PseudoConfig("aligned"), None),
+             (f"aligned, fused texture {FUSED_TEXTURE} (no Refiner)", PseudoConfig("aligned"), None)]
     kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
               for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if f"refiner_{c}" in models]
     if "refiner_warp+geo" in models:
@@ -649,7 +652,8 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     frames, coverage, ms, columns = {}, {}, {}, {}
     for label, cfg, refiner in kinds:
         seconds: dict[str, float] = {}
-        made = [make_pseudo_frames([c], src, render_with(base, src.K), cfg, body=subj.body, aligner=aligner,
+        made = [make_pseudo_frames([c], src, render_with(base, src.K), cfg, body=subj.body,
+                                   aligner=fused if label.startswith("aligned, fused") else aligner,
                                    refiner=refiner, seconds=seconds) for c, src, _ in picked]
         images = np.stack([m.images[0] for m in made])  # over the subject's background; composited like the truth
         frames[label] = psnr(images)

@@ -14,6 +14,7 @@ import numpy as np
 
 from trioman.runtime.mesh_raster import interpolate, rasterize_mesh, vertex_normals
 from trioman.runtime.skeleton import SkinnedMesh
+from trioman.runtime.texture_fusion import FusedTexture, fuse_texture
 
 __all__ = ["AlignConfig", "Aligned", "SourceViews", "Aligner"]
 
@@ -30,11 +31,18 @@ class AlignConfig:
     flow_consistency: float = 1.0  # pixels: forward + backward flow longer than this drops the pixel
     band: float = 0.1  # off the body, the carried mask reaches this far (fraction of the image's longer side)
     cache: int = 64  # source frames whose posed body and depth are kept between draws
+    texture: int = 0  # > 0: a texture of this many texels a side fused from every source frame
+    # (runtime/texture_fusion.py) gives the colour wherever its texels were seen; the carried pixels elsewhere
+    texture_smooth: float = 0.02  # the fused texture's smoothness weight
+    texture_min_seen: float = 0.05  # a fused texel counts as seen from this total pixel weight on
 
     def __post_init__(self) -> None:
         if isinstance(self.sources, bool) or not isinstance(self.sources, int) or self.sources < 1:
             raise ValueError(f"sources: must be an integer >= 1, got {self.sources!r}")
-        for name in ("depth_tolerance", "max_flow", "band", "flow_consistency", "angle_power", "own_frame_weight"):
+        if isinstance(self.texture, bool) or not isinstance(self.texture, int) or not (self.texture == 0 or 16 <= self.texture <= 4096):
+            raise ValueError(f"texture: 0 (off) or the fused texture's side in texels, 16 to 4096, got {self.texture!r}")
+        for name in ("depth_tolerance", "max_flow", "band", "flow_consistency", "angle_power", "own_frame_weight",
+                     "texture_smooth", "texture_min_seen"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
@@ -129,6 +137,21 @@ class Aligner:
         self._dirs = np.stack([_direction_in_body(mesh, views.poses[p], views.trans[p], views.viewmat[p])
                                for p in range(len(views))])
         self._cache: OrderedDict[int, _Posed] = OrderedDict()
+        self._fused: FusedTexture | None = None
+
+    @property
+    def fused(self) -> FusedTexture:
+        """The texture fused from every source view (``cfg.texture`` texels a side), made on first use."""
+        if self._fused is None:
+            v = self.views
+
+            def frame(p: int) -> tuple:
+                m = np.asarray(v.mask(p), np.float32)
+                colour = np.asarray(v.image(p), np.float32) / np.maximum(m, 1e-6)[..., None]  # un-premultiplied
+                return v.poses[p], v.trans[p], v.viewmat[p], v.K[p], colour, m
+
+            self._fused = fuse_texture(self.mesh, len(v), frame, self.cfg.texture, self.cfg.texture_smooth)
+        return self._fused
 
     def sources_for(self, own: int, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray,
                     exclude: Collection[int] = ()) -> list[int]:
@@ -159,6 +182,8 @@ class Aligner:
         position ``own``; ``coarse`` [H, W, 3]: the avatar's render at the draw, to re-align to (cfg.flow);
         ``exclude``: positions never used as the other sources (a Refiner's target frame)."""
         cfg, W, H = self.cfg, self.views.width, self.views.height
+        if cfg.texture and exclude:
+            raise ValueError("exclude: a fused texture holds every source frame; align with texture 0 to leave frames out")
         verts = self.mesh.pose(np.asarray(pose, np.float64), np.asarray(trans, np.float64))
         frags = rasterize_mesh(verts, self.faces, viewmat, K, W, H)
         body = frags.face_id >= 0
@@ -193,6 +218,10 @@ class Aligner:
         silhouette = self._silhouette(own, body, own_xy)
         if cfg.flow and coarse is not None and valid.any():
             rgb, valid = self._realign(rgb, valid, np.asarray(coarse, np.float32))
+        if cfg.texture:
+            fused, seen = self.fused.render(self.mesh, pose, trans, viewmat, K, W, H, cfg.texture_min_seen)
+            seen &= body
+            rgb, valid = np.where(seen[..., None], fused, rgb).astype(np.float32), valid | seen
         return Aligned(rgb, valid, body, silhouette)
 
     def _silhouette(self, own: int, body: np.ndarray, own_xy: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:

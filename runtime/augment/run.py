@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from trioman.runtime.aligned import AlignConfig
 from trioman.runtime.augment.assemble import finish
 from trioman.runtime.augment.checks import check_joints, check_keep_carried, check_options, check_out, existing, written_files
 from trioman.runtime.augment.layout import AUGMENT_JSON, RECORDS_DIR, dump, running_header
@@ -48,6 +49,7 @@ def augment(
     merge: bool = False,
     mask: str = "carried",
     keep_carried: bool | None = None,
+    texture: int = 0,
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
     optional Examiner (ONNX files) into the folder ``out`` (package doc). -> the augment.json content.
@@ -60,6 +62,8 @@ def augment(
     "alpha" (the avatar render's own alpha); runtime/pseudo_gt.py.
     keep_carried: with a Refiner, keep the real pixels carried to the draw and take the Refiner's output only
     where nothing was carried (``PseudoConfig.keep_carried``); None (default): whenever there is a Refiner.
+    texture: > 0, the aligned reference's colour from a texture of that side fused from every source frame where
+    its texels were seen (``AlignConfig.texture``); 0: carried pixels only.
     Every input is checked before any work; a bad one raises ValueError / FileNotFoundError /
     FileExistsError / FormatError naming the parameter and the value.
     shard: do only that shard's frames, in out/shards/I-of-N (-> its record); merge: assemble ``out``
@@ -80,6 +84,7 @@ def augment(
         raise ValueError("examiner: chooses among refined candidates; give `refiner` too (without a Refiner the "
                          "pseudo-GT is the aligned kind: the render with real pixels carried through the body mesh)")
     check_keep_carried(keep_carried, refiner)
+    AlignConfig(texture=texture)  # checks it
     keep_carried = refiner is not None if keep_carried is None else keep_carried
     examiner_path = None if examiner is None else existing(examiner, "examiner", "Examiner ONNX file")
     if shard is not None and merge:
@@ -109,13 +114,15 @@ def augment(
     pseudo = PseudoConfig(kind=kind, mask=mask, threshold=threshold, keep_carried=keep_carried)
     settings = run_settings(subj, av, avatar_path, ref_model, refiner_path, ex_model, examiner_path, seed, per_frame,
                             threshold, frames, gen_cfg, mask, keep_carried)
+    if texture:
+        settings["texture"] = texture
     if had_output and resume:
         check_resume(out, settings)
     names = [str(subj.frame_names[i]) for i in selection]
     if merge:
         return merge_shards(out, subj, selection, check_shards(out, {**settings, "limit": limit}), settings,
                             ex_model is not None, threshold)
-    step = Step(av, ref_model, ex_model, make_aligner(subj, views_of, pseudo, ref_model), pseudo,
+    step = Step(av, ref_model, ex_model, make_aligner(subj, views_of, pseudo, ref_model, texture), pseudo,
                 {int(i): p for p, i in enumerate(views_of)}, seed, per_frame, gen_cfg)
     if shard is not None:
         with shard_run(top, shard, {**settings, "limit": limit}, shard.take(names)):

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from trioman.runtime.aligned import Aligner, SourceViews
+from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.augment.layout import AUGMENT_VERSION, STAGES, dump, record_path
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR
@@ -45,11 +45,12 @@ class Step:
         return self.pseudo.kind == "aligned"
 
 
-def make_aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig, refiner: Any) -> Aligner | None:
-    """The aligned reference over the subject's frames ``indices`` (when the pseudo-GT needs it)."""
+def make_aligner(subj: Any, indices: np.ndarray, pseudo: PseudoConfig, refiner: Any, texture: int = 0) -> Aligner | None:
+    """The aligned reference over the subject's frames ``indices`` (when the pseudo-GT needs it); ``texture``:
+    ``AlignConfig.texture``."""
     if not needs_aligner(pseudo, None if refiner is None else refiner.conditions):
         return None
-    return Aligner(subj.body, SourceViews.of_subject(subj, indices))
+    return Aligner(subj.body, SourceViews.of_subject(subj, indices), AlignConfig(texture=texture))
 
 
 def _group_norms(delta: np.ndarray, groups: np.ndarray) -> dict[str, float]:

@@ -34,10 +34,12 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert res["baseline_long"]["0"]["iterations"] == 4 and res["baseline"]["0"]["augment"] is None
     assert r["plan"]["detail_sigma"] == 2.0
     truth = r["pseudo_gt_truth"]["s02"]
-    assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "refined (none)", "refined (tex)", "refined (tex+geo)",
+    assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "aligned, fused texture 256 (no Refiner)",
+                                    "refined (none)", "refined (tex)", "refined (tex+geo)",
                                     "refined (warp+geo)", "refined (warp+geo), carried pixels kept",
                                     "detail only (tex+geo, 2 px)"}
     assert all(np.isfinite(v) for v in truth["frames"].values()) and 0 < truth["coverage"]["aligned (no Refiner)"] <= 1
+    assert truth["coverage"]["aligned (no Refiner)"] <= truth["coverage"]["aligned, fused texture 256 (no Refiner)"] <= 1
     assert set(truth["avatars"]) == {v for v, *_ in VARIANTS + LEVERS} and all(
         np.isfinite(a["psnr"]) and len(a["colour_bias"]) == 3 for a in truth["avatars"].values())
     e = truth["examiner"]

@@ -415,6 +415,24 @@ def test_without_a_refiner_the_frames_are_aligned_with_per_pixel_weights(inputs,
         augment(inputs.subject, inputs.avatar, None, tmp_path / "e", inputs.examiner, progress=False)
 
 
+def test_a_fused_texture_colours_the_aligned_frames_and_is_recorded(inputs, tmp_path):
+    """--texture N: the aligned reference's colour from the texture fused from every source frame (where seen);
+    recorded in the settings (a resume with another value is refused); a bad value is refused before any work."""
+    plain, fused = tmp_path / "plain", tmp_path / "fused"
+    for out, texture in ((plain, 0), (fused, 32)):
+        augment(inputs.subject, inputs.avatar, None, out, frames="all", limit=1, seed=7, progress=False, per_frame=1,
+                texture=texture)
+    settings = json.loads((fused / AUGMENT_JSON).read_text())["settings"]
+    assert settings["texture"] == 32 and "texture" not in json.loads((plain / AUGMENT_JSON).read_text())["settings"]
+    a, b = load_subject(plain), load_subject(fused)
+    assert not np.array_equal(a.image(0), b.image(0)) and np.array_equal(a.mask(0), b.mask(0))
+    rec = records(fused)[0]
+    assert rec["candidates"][0]["body_coverage"] >= records(plain)[0]["candidates"][0]["body_coverage"]
+    with pytest.raises(ValueError, match="^texture: 0 .* got 8"):
+        augment(inputs.subject, inputs.avatar, None, tmp_path / "bad", texture=8, progress=False)
+    assert not (tmp_path / "bad").exists()
+
+
 def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs, tmp_path, capsys):
     """--keep-carried (the default with --refiner): where a real pixel was carried to the draw the pseudo-GT shows
     it, elsewhere the Refiner's output, the same bytes as with --no-keep-carried; recorded in the settings and the

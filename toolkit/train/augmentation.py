@@ -40,6 +40,8 @@ class AugmentConfig:
     mask: str = "carried"  # pseudo frame mask: "carried" (body mesh + source mask carried to the draw) or "alpha" (render's)
     unknown_weight: float = 0.0  # modes "aligned", "truth_seen": loss weight of body pixels no real pixel reached
     align_sources: int = 3  # training frames whose pixels the aligned reference fuses per draw
+    align_texture: int = 0  # > 0: the aligned reference's colour from a texture of this side fused from every
+    # training frame, where its texels were seen (runtime/texture_fusion.py); 0: carried pixels only
     refiner: str | None = None  # run folder, checkpoint or .onnx (modes refined, examined)
     examiner: str | None = None  # run folder, checkpoint or .onnx (mode examined)
     per_frame: int | None = None  # Generator candidates per source frame; None: 2 with an Examiner, else 1
@@ -93,6 +95,12 @@ class AugmentConfig:
             raise ValueError("augment_keep_carried: needs a Refiner to fill what was not carried (`augment` refined or examined)")
         if isinstance(self.align_sources, bool) or not isinstance(self.align_sources, int) or self.align_sources < 1:
             raise ValueError(f"augment_align_sources: must be an integer >= 1, got {self.align_sources!r}")
+        t = self.align_texture
+        if isinstance(t, bool) or not isinstance(t, int) or not (t == 0 or 16 <= t <= 4096):
+            raise ValueError(f"augment_align_texture: 0 (off) or the fused texture's side in texels, 16 to 4096, got {t!r}")
+        if t and self.mode not in ("aligned", "refined", "examined"):
+            raise ValueError(f"augment_align_texture: `augment` {self.mode} takes no colour from the aligned reference "
+                             "(use `augment` aligned, refined or examined)")
         if self.mask not in MASKS:
             raise ValueError(f"augment_mask: expected one of {MASKS}, got {self.mask!r}")
         self.pseudo()  # validates the mask and weights
@@ -146,7 +154,7 @@ class Augmenter:
         if needs_aligner(self.pseudo_cfg, None if self.refiner is None else self.refiner.conditions):
             views = SourceViews(lambda p: frames.image(p).numpy(), lambda p: frames.mask(p).numpy(), frames.poses.numpy(),
                                 frames.trans.numpy(), frames.viewmat.numpy(), frames.K.numpy(), frames.width, frames.height)
-            self.aligner = Aligner(subject.body, views, AlignConfig(sources=cfg.align_sources))
+            self.aligner = Aligner(subject.body, views, AlignConfig(sources=cfg.align_sources, texture=cfg.align_texture))
         self.truth = None
         if self.pseudo_cfg.from_truth:
             from trioman.toolkit.synth.subject import TruthRenderer

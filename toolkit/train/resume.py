@@ -103,7 +103,8 @@ def _flag(field: str) -> str:
 
 # AugmentConfig fields whose flag is not "--augment-<field>" (trioman/commands/train.py).
 _AUGMENT_OWN_FLAGS = {"refiner": "--refiner", "examiner": "--examiner", "per_frame": "--per-frame",
-                      "threshold": "--threshold", "align_sources": "--augment-sources"}
+                      "threshold": "--threshold", "align_sources": "--augment-sources",
+                      "align_texture": "--augment-texture"}
 
 
 def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = None) -> str:

@@ -23,7 +23,7 @@ import re
 # The parameters of trioman.runtime.augment.augment that this command's flags set -> the flag as typed.
 FLAGS = {"subject": "SUBJECT", "avatar": "--avatar", "refiner": "--refiner", "examiner": "--examiner", "out": "--out",
          "per_frame": "--per-frame", "threshold": "--threshold", "seed": "--seed", "frames": "--frames",
-         "limit": "--limit", "mask": "--mask", "keep_carried": "--keep-carried", "threads": "--threads",
+         "limit": "--limit", "mask": "--mask", "keep_carried": "--keep-carried", "texture": "--texture", "threads": "--threads",
          "resume": "--resume", "overwrite": "--overwrite", "shard": "--shard", "merge": "--merge"}
 
 
@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --refiner: keep the real pixels carried to the draw and take the Refiner's output "
                              "only where nothing was carried (default with --refiner; measured best, "
                              "docs/augmentation.md)")
+    parser.add_argument("--texture", type=int, default=0, metavar="TEXELS",
+                        help="take the aligned reference's colour from a texture of this side fused from every source "
+                             "frame wherever its texels were seen (runtime/texture_fusion.py; 0, default: carried pixels only)")
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: its own)")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")
@@ -71,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
         r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
                     threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
                     overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard,
-                    merge=args.merge, mask=args.mask, keep_carried=args.keep_carried)
+                    merge=args.merge, mask=args.mask, keep_carried=args.keep_carried,
+                    texture=args.texture)
     except (ValueError, OSError) as err:  # our own messages (an OSError with an errno is the system's): flags
         if len(err.args) == 1 and isinstance(err.args[0], str) and not getattr(err, "errno", None):
             err.args = (flag_message(err.args[0]),)

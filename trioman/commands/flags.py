@@ -20,6 +20,7 @@ UNDECLARED = {
               "augment_refresh": "--augment-refresh", "augment_pool": "--augment-pool", "augment_share": "--augment-share",
               "augment_weight": "--augment-weight", "augment_detail_sigma": "--augment-detail-sigma",
               "augment_mask": "--augment-mask", "augment_align_sources": "--augment-sources",
+              "augment_align_texture": "--augment-texture",
               "augment_keep_carried": "--augment-keep-carried", "keep_carried": "--augment-keep-carried",
               "unknown_weight": "--augment-unknown-weight"},
 }

@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "docs/augmentation.md)")
     aug.add_argument("--augment-sources", type=int, default=None,
                      help="training frames the aligned reference fuses per draw (default 3)")
+    aug.add_argument("--augment-texture", type=int, default=None, metavar="TEXELS",
+                     help="take the aligned reference's colour from a texture of this side fused from every training "
+                          "frame wherever its texels were seen (runtime/texture_fusion.py; default 0: carried pixels only)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its latest checkpoint (same subject, options and trioman "
                              "version as the run, else refused naming what differs)")
@@ -94,7 +97,7 @@ _AUGMENT_FLAGS = {"refiner": "refiner", "examiner": "examiner", "per_frame": "pe
                   "augment_start": "start", "augment_refresh": "refresh", "augment_pool": "pool",
                   "augment_share": "share", "augment_weight": "weight", "augment_detail_sigma": "detail_sigma",
                   "augment_mask": "mask", "augment_unknown_weight": "unknown_weight", "augment_sources": "align_sources",
-                  "augment_keep_carried": "keep_carried"}
+                  "augment_keep_carried": "keep_carried", "augment_texture": "align_texture"}
 
 
 def augment_config(args: argparse.Namespace):

@@ -138,6 +138,10 @@ def test_config_errors_name_the_option():
         AugmentConfig(mode="refined", refiner="r", detail_sigma=-1.0)
     with pytest.raises(ValueError, match="augment_detail_sigma: needs a Refiner"):
         AugmentConfig(detail_sigma=2.0)
+    with pytest.raises(ValueError, match="augment_align_texture: 0 .* got 8"):
+        AugmentConfig(mode="aligned", align_texture=8)
+    with pytest.raises(ValueError, match="augment_align_texture: `augment` coarse takes no colour"):
+        AugmentConfig(mode="coarse", align_texture=256)
 
 
 class _ShiftingRefiner:
@@ -258,6 +262,9 @@ def test_augment_alone_means_aligned_with_the_carried_mask(subject, tmp_path):
     args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "coarse",
                                       "--augment-mask", "alpha", "--augment-sources", "1"])
     assert (augment_config(args).mask, augment_config(args).align_sources) == ("alpha", 1)
+    args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment",
+                                      "--augment-texture", "128"])
+    assert (augment_config(args).align_texture, cfg.align_texture) == (128, 0)
 
 
 def test_a_refiner_keeps_the_carried_pixels_unless_told_not_to(subject, tmp_path):
