@@ -257,10 +257,14 @@ class RefinerJob(Job):
                 quant_pre_process(str(fp32), str(pre), skip_symbolic_shape=True)
                 quantize_static(str(pre), str(path), Reader(self.feeds(self.data.calibration)),
                                 quant_format=QuantFormat.QDQ, per_channel=True, activation_type=QuantType.QUInt8,
-                                weight_type=QuantType.QInt8, op_types_to_quantize=list(REFINER_INT8_OPS))
+                                weight_type=QuantType.QInt8, op_types_to_quantize=list(REFINER_INT8_OPS),
+                                # 7-bit weights: x86 CPUs without VNNI multiply u8 x s8 pairs into 16-bit sums that
+                                # saturate with full-range weights (onnxruntime's quantization guide), so the model
+                                # would give other numbers there than on the machine that exported it
+                                reduce_range=True)
         finally:
             pre.unlink(missing_ok=True)
-        how = (f"static QDQ of {'/'.join(REFINER_INT8_OPS)}: per-channel QInt8 weights, QUInt8 activations, MinMax "
+        how = (f"static QDQ of {'/'.join(REFINER_INT8_OPS)}: per-channel QInt8 weights (7-bit range), QUInt8 activations, MinMax "
                f"calibration on {self.data.calibration.count} {self.data.info['source']} frames; normalisations, "
                f"softmax and the logit/sigmoid output stay fp32")
         self.finish_variant(onnx.load(str(path)), path, "int8", {"quantization": how})
