@@ -2,7 +2,7 @@
 through the image formation (bilinear texels, ``SUPERSAMPLE``^2 samples per pixel), by least squares with a
 smoothness term, solved by preconditioned conjugate gradients (numpy only). Rendered at a Generator draw it is
 the aligned reference's colour where the fused texels were seen (docs/augmentation.md, "The aligned
-reference"): many frames' pixels of one surface point, each a different sampling of it, recover detail no single
+reference" and "A fused texture"): many frames' pixels of one surface point, each a different sampling of it, recover detail no single
 frame holds, which carrying one frame's pixels through the mesh resamples away.
 """
 
@@ -98,6 +98,9 @@ def fuse_texture(mesh: SkinnedMesh, frames: int, frame: Callable[[int], tuple], 
         idx_all.append(idx[keep])
         w_all.append(w[keep])
         b_all.append(np.asarray(image, np.float32).reshape(-1, 3)[pix[keep]])
+    if not sum(len(i) for i in idx_all):
+        raise ValueError(f"frames: none of the {frames} source frames shows a pixel wholly on the body inside its mask; "
+                         "nothing to fuse a texture from")
     idx, w, b = np.concatenate(idx_all), np.concatenate(w_all).astype(np.float64), np.concatenate(b_all).astype(np.float64)
     n = size * size
     flat = idx.reshape(-1)
@@ -117,7 +120,7 @@ def fuse_texture(mesh: SkinnedMesh, frames: int, frame: Callable[[int], tuple], 
     diag = np.bincount(flat, (w * w).reshape(-1), minlength=n) + smooth * degree.reshape(-1)
     rhs = At(b)
     # preconditioned conjugate gradients from the seen texels' mean colours, the three channels at once
-    x = np.where(seen[:, None] > 0, rhs / np.maximum(seen, 1e-12)[:, None], b.mean(0)[None] if len(b) else 0.5)
+    x = np.where(seen[:, None] > 0, rhs / np.maximum(seen, 1e-12)[:, None], b.mean(0)[None])
     r = rhs - normal(x)
     z = r / diag[:, None]
     d = z.copy()

@@ -107,3 +107,6 @@ def test_the_aligner_takes_the_fused_colour_where_seen_and_refuses_what_it_canno
         Aligner(MESH, views, AlignConfig(texture=64)).align(3, POSE, TRANS, draw, K)
     with pytest.raises(ValueError, match="texture"):
         AlignConfig(texture=8)
+    empty = frames_of(tex)
+    with pytest.raises(ValueError, match="^frames: none of the 2 source frames"):
+        fuse_texture(UV_MESH, 2, lambda p: (*empty(p)[:5], np.zeros((SIZE, SIZE), np.float32)), 32)
