@@ -90,7 +90,7 @@ def bin_gaussians(means2d: np.ndarray, radii: np.ndarray, depths: np.ndarray, wi
     c0, c1 = np.take(t_lo[0], rg), np.take(t_hi[0], rg)
     if chol is not None:
         c0, c1 = _ellipse_tiles(means2d, chol, opacities, order, rg, tr, c0, c1, width, height, tile)
-    nc = c1 - c0 + 1
+    nc = np.maximum(c1 - c0 + 1, 0)  # an ellipse that misses a row of its box covers none of its tiles
     # (Gaussian, tile) pairs
     pr = np.repeat(np.arange(len(rg)), nc)  # each pair's row
     g = np.take(order, np.take(rg, pr))
