@@ -84,7 +84,8 @@ def fuse_texture(mesh: SkinnedMesh, frames: int, frame: Callable[[int], tuple], 
     ``frames`` source frames; ``frame(p)`` -> (pose [J, 3], trans [3], viewmat [4, 4], K [3, 3], image [H, W, 3]
     colour, mask [H, W]); pixels with mask below ``min_mask`` (the silhouette's edge, the background) are left
     out. Texels no pixel sampled take their neighbours' colour from the smoothness term and have ``seen`` 0. The
-    solve stops after ``iterations`` or when the residual is ``tol`` of the right-hand side."""
+    solve stops after ``iterations`` or when the residual is ``tol`` of the right-hand side; the texture is clipped
+    to the frames' colour range."""
     if isinstance(size, bool) or not isinstance(size, int) or size < 2:
         raise ValueError(f"size: the texture's side in texels, an integer >= 2, got {size!r}")
     if not (np.isfinite(smooth) and smooth > 0):
@@ -136,4 +137,7 @@ def fuse_texture(mesh: SkinnedMesh, frames: int, frame: Callable[[int], tuple], 
             break
         d = z + (rz_new / np.maximum(rz, 1e-30)) * d
         rz = rz_new
+    # no colour outside the frames' range: an iterate stopped early can overshoot far where the smoothness term is
+    # all that holds a texel (unseen texels under a small ``smooth``)
+    x = np.clip(x, b.min(), b.max())
     return FusedTexture(x.reshape(size, size, 3).astype(np.float32), seen.reshape(size, size).astype(np.float32))
