@@ -49,9 +49,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
+
+if TYPE_CHECKING:
+    from trioman.toolkit.train.config import TrainConfig
 
 # (name, augment mode, refiner condition, seeded): the order of the report's rows.
 VARIANTS = (
@@ -226,7 +230,7 @@ class Job:
 
     subject: Path
     run: Path
-    cfg: object  # TrainConfig
+    cfg: TrainConfig
     fork: tuple[Path, int] | None = None
     stop_after: int | None = None
 
