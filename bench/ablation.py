@@ -648,8 +648,10 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     kinds += [(f"refined ({c})", PseudoConfig("refined"), load_pseudo_refiner(str(models[f"refiner_{c}"])))
               for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if f"refiner_{c}" in models]
     if "refiner_warp+geo" in models:
-        kinds.append(("refined (warp+geo), carried pixels kept", PseudoConfig("refined", keep_carried=True),
-                      next(r for label, _, r in kinds if label == "refined (warp+geo)")))
+        warp = next(r for label, _, r in kinds if label == "refined (warp+geo)")
+        kinds += [("refined (warp+geo), carried pixels kept", PseudoConfig("refined", keep_carried=True), warp),
+                  (f"refined (warp+geo), carried pixels kept, fused texture {FUSED_TEXTURE}",
+                   PseudoConfig("refined", keep_carried=True), warp)]
     if plan.detail_sigma and "refiner_tex+geo" in models:
         kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)", PseudoConfig("refined", detail_sigma=plan.detail_sigma),
                       next(r for label, _, r in kinds if label == "refined (tex+geo)")))
@@ -657,7 +659,7 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     for label, cfg, refiner in kinds:
         seconds: dict[str, float] = {}
         made = [make_pseudo_frames([c], src, render_with(base, src.K), cfg, body=subj.body,
-                                   aligner=fused if label.startswith("aligned, fused") else aligner,
+                                   aligner=fused if "fused texture" in label else aligner,
                                    refiner=refiner, seconds=seconds) for c, src, _ in picked]
         images = np.stack([m.images[0] for m in made])  # over the subject's background; composited like the truth
         frames[label] = psnr(images)
@@ -690,6 +692,21 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     if "examiner" in models and "refiner_warp+geo" in models:
         found["examiner"] = examiner_choices(subj, base, models, truth_renderer, aligner, draws, seed, plan.camera)
     return found
+
+
+def _frame_target(frames: dict[str, float]) -> list[str]:
+    """The frame-level target (Refiner warp+geo, carried pixels kept >= aligned >= render + 1.5 dB), with and without
+    the fused texture, for the kinds a report holds."""
+    out = []
+    for how, suffix in (("", ""), (f" with the fused texture {FUSED_TEXTURE}", f", fused texture {FUSED_TEXTURE}")):
+        a = frames.get("aligned (no Refiner)" if not suffix else f"aligned{suffix} (no Refiner)")
+        r = frames.get(f"refined (warp+geo), carried pixels kept{suffix}")
+        if a is None or r is None:
+            continue
+        holds = r >= a >= frames["coarse"] + 1.5
+        out.append(f"Frame-level target{how}: refined (warp+geo, carried pixels kept) {r:.2f} >= aligned {a:.2f} >= "
+                   f"render + 1.5 dB ({frames['coarse'] + 1.5:.2f}): {'holds' if holds else 'does not hold'}.")
+    return out + [""] if out else []
 
 
 def _source(subj, position: int, i: int, bg: np.ndarray):
@@ -892,6 +909,7 @@ def ablation_markdown(r: dict) -> str:
         lines += [f"| {k} | {v:.2f} | {v - t['frames']['coarse']:+.2f} | "
                   f"{'' if k not in t.get('coverage', {}) else format(t['coverage'][k], '.0%')} | "
                   f"{t.get('ms_per_draw', {}).get(k, float('nan')):.0f} |" for k, v in t["frames"].items()]
+        lines += [""] + _frame_target(t["frames"])
         lines += ["", "Each finished run's own renders at the same draws (what its next pseudo-GT would start from), with "
                   "the mean signed colour error inside the body (RGB, 0..1):", "",
                   "| run (seed 0) | PSNR vs truth | colour error R, G, B |", "|---|---|---|"]

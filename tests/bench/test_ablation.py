@@ -10,7 +10,7 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.ablation import LABELS, LEVERS, VARIANTS, AblationPlan, ablation_markdown, summarise  # noqa: E402
+from trioman.bench.ablation import LABELS, LEVERS, VARIANTS, AblationPlan, _frame_target, ablation_markdown, summarise  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
 
@@ -37,6 +37,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "aligned, fused texture 256 (no Refiner)",
                                     "refined (none)", "refined (tex)", "refined (tex+geo)",
                                     "refined (warp+geo)", "refined (warp+geo), carried pixels kept",
+                                    "refined (warp+geo), carried pixels kept, fused texture 256",
                                     "detail only (tex+geo, 2 px)"}
     assert all(np.isfinite(v) for v in truth["frames"].values()) and 0 < truth["coverage"]["aligned (no Refiner)"] <= 1
     assert truth["coverage"]["aligned (no Refiner)"] <= truth["coverage"]["aligned, fused texture 256 (no Refiner)"] <= 1
@@ -70,7 +71,8 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     for text in ("Table 1", "Table 2", "+ Generator & Refiner (aligned ref.&geo., carried pixels kept) & Examiner", "equal steps (control)", "paper 00028",
                  "Ceiling (the truth at every draw) over the equal-steps control", "share of the ceiling's gain",
                  "Do the Refiners use their conditions", "| refined, true reference and normal map |", "ms per step",
-                 "detail only (lever)", "Pseudo-GT against the truth: s02", "What the Examiner keeps"):
+                 "detail only (lever)", "Pseudo-GT against the truth: s02", "What the Examiner keeps",
+                 "Frame-level target: refined (warp+geo, carried pixels kept)", "Frame-level target with the fused texture 256"):
         assert text in md, text
     for name in ("ablation_s02.png", "grid_s02.png", "pseudo_gt_s02.png"):
         assert (out / name).stat().st_size > 0, name
@@ -207,3 +209,14 @@ def test_summary_verdicts_follow_the_numbers():
     res["a"]["G"] = {"0": {**runs(20.5)["0"], "psnr_unmasked": 19.0}}
     assert not summarise(res)["verdict"]["unmasked_at_least_baseline"]["G"]
 
+
+
+def test_the_frame_level_target_reads_each_kind_and_says_which_holds():
+    frames = {"coarse": 28.0, "aligned (no Refiner)": 29.4, "refined (warp+geo), carried pixels kept": 29.6,
+              "aligned, fused texture 256 (no Refiner)": 30.0, "refined (warp+geo), carried pixels kept, fused texture 256": 30.1}
+    plain, fused, _ = _frame_target(frames)
+    assert plain.endswith("render + 1.5 dB (29.50): does not hold.") and "29.60 >= aligned 29.40" in plain
+    assert fused.startswith("Frame-level target with the fused texture 256") and fused.endswith(": holds.")
+    frames["refined (warp+geo), carried pixels kept, fused texture 256"] = 29.9  # below its aligned reference
+    assert _frame_target(frames)[1].endswith("does not hold.")
+    assert _frame_target({"coarse": 28.0, "aligned (no Refiner)": 30.0}) == []  # a report without the Refiner's rows
