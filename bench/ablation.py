@@ -699,14 +699,14 @@ def _frame_target(frames: dict[str, float]) -> list[str]:
     the fused texture, for the kinds a report holds."""
     out = []
     for how, suffix in (("", ""), (f" with the fused texture {FUSED_TEXTURE}", f", fused texture {FUSED_TEXTURE}")):
-        a = frames.get("aligned (no Refiner)" if not suffix else f"aligned{suffix} (no Refiner)")
+        a = frames.get(f"aligned{suffix} (no Refiner)")
         r = frames.get(f"refined (warp+geo), carried pixels kept{suffix}")
         if a is None or r is None:
             continue
         holds = r >= a >= frames["coarse"] + 1.5
         out.append(f"Frame-level target{how}: refined (warp+geo, carried pixels kept) {r:.2f} >= aligned {a:.2f} >= "
                    f"render + 1.5 dB ({frames['coarse'] + 1.5:.2f}): {'holds' if holds else 'does not hold'}.")
-    return out + [""] if out else []
+    return out
 
 
 def _source(subj, position: int, i: int, bg: np.ndarray):

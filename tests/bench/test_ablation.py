@@ -214,7 +214,7 @@ def test_summary_verdicts_follow_the_numbers():
 def test_the_frame_level_target_reads_each_kind_and_says_which_holds():
     frames = {"coarse": 28.0, "aligned (no Refiner)": 29.4, "refined (warp+geo), carried pixels kept": 29.6,
               "aligned, fused texture 256 (no Refiner)": 30.0, "refined (warp+geo), carried pixels kept, fused texture 256": 30.1}
-    plain, fused, _ = _frame_target(frames)
+    plain, fused = _frame_target(frames)
     assert plain.endswith("render + 1.5 dB (29.50): does not hold.") and "29.60 >= aligned 29.40" in plain
     assert fused.startswith("Frame-level target with the fused texture 256") and fused.endswith(": holds.")
     frames["refined (warp+geo), carried pixels kept, fused texture 256"] = 29.9  # below its aligned reference
