@@ -1,5 +1,5 @@
 # Two commands do all the set-up on a fresh machine (Python 3.11):
-#   make demo   create .venv, install CPU torch + trioman[train,smplx,diffusion,viewer,dev], run the demo
+#   make demo   create .venv, install CPU torch + trioman[train,smplx,diffusion,viewer,fit,dev], run the demo
 #   make test   the same install, then ruff check and the test suite
 PYTHON ?= python3
 VENV   ?= .venv
@@ -7,16 +7,20 @@ BIN    := $(VENV)/bin
 OUT    ?= out/demo
 # The CPU build of torch; a bare "torch" would pull a multi-GB CUDA build.
 TORCH  ?= torch==2.13.0
+# The wheel that carries MediaPipe's pose models (trioman.runtime.person); installed without its dependencies.
+MEDIAPIPE ?= mediapipe==0.10.21
 
 .PHONY: demo lint test test-all install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-# Re-install when the project's metadata changes.
+# Re-install when the project's metadata changes. $(MEDIAPIPE) carries the pose models of trioman.runtime.person
+# and comes without its dependencies: its pins (numpy<2, protobuf<5, jax) would undo the rest (docs/fit.md).
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/pip install -q "$(TORCH)"
-	$(BIN)/pip install -q -e ".[train,smplx,diffusion,viewer,dev]"
+	$(BIN)/pip install -q -e ".[train,smplx,diffusion,viewer,fit,dev]"
+	$(BIN)/pip install -q --no-deps "$(MEDIAPIPE)"
 	touch $@
 
 install: $(VENV)/.installed
