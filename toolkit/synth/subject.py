@@ -1,16 +1,25 @@
 """Synthetic subjects: a seeded body, clothing texture, training and test motions, cameras, frames.
 
 Training frames mimic a monocular capture: a fixed camera and a subject turning in place through
-360 degrees (or ``coverage`` of a turn: a capture seen from one side) with mild arm and leg motion.
+360 degrees (or ``coverage`` of a turn: a capture seen from one side) with mild arm and leg motion
+(``capture="steps"``: a few steps across the view first).
 Test frames are novel poses (arms raised, squat, step,
 wave) seen from novel views (other elevations, distances and body orientations). Frames are
 rendered by the z-buffer mesh rasterizer with per-pixel texture lookup and 2x2 supersampling.
+
+Two styles: ``plain`` paints the clothes on a bald body on black (the unit tests' subjects); ``realistic``
+dresses the body in hair, garments and shoes of their own geometry, lights it with a world-fixed key light
+and soft shadows, puts it in a room and films it with a hand-held phone (``toolkit/synth/realistic.py``).
+Either way the truth stays exact: the person mask (hair and garments included), the poses, the cameras,
+and ``TruthRenderer`` re-renders the whole person at any pose and camera.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+import multiprocessing
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,14 +29,16 @@ from tqdm import tqdm
 
 from trioman import __version__
 from trioman.runtime import motions
-from trioman.runtime.cameras import intrinsics, orbit_viewmat
+from trioman.runtime.cameras import intrinsics, orbit_viewmat, project
 from trioman.runtime.formats import Subject, save_subject
-from trioman.runtime.image_io import write_png
+from trioman.runtime.image_io import VideoWriter, write_png
 from trioman.runtime.preview import contact_sheet
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.body.anny_model import PHENOTYPE_LABELS
 from trioman.toolkit.body.registry import create_body_model
+from trioman.toolkit.synth.garments import BOTTOMS, HAIRSTYLES, OUTERWEAR, TOPS, Outfit
+from trioman.toolkit.synth.realistic import Scene, handheld
 from trioman.toolkit.synth.shading import render_textured
 from trioman.toolkit.synth.texture import bake_texture
 
@@ -39,6 +50,10 @@ TEST_VIEWS = {
     "wave": (-25.0, 35.0, 3.4, -0.7),
 }
 TRAIN_VIEW = (0.0, 5.0, 3.0)  # azimuth deg, elevation deg, distance m
+STYLES = ("plain", "realistic")
+CAPTURES = ("turn", "steps")
+STEPS_REACH = 0.35  # m either side of the centre a "steps" capture walks
+VIDEO_FPS = 30.0
 
 
 @dataclass(frozen=True)
@@ -53,10 +68,36 @@ class SynthConfig:
     supersample: int = 2
     body_model: str = "anny"
     coverage: float = 1.0  # fraction of a full turn the training frames span, from facing the camera (1: all round)
+    style: str = "plain"  # "plain" (painted clothes, bald, on black) or "realistic" (module docstring)
+    capture: str = "turn"  # "turn" in place, or "steps": a few steps across the view, then the turn
+    aspect: float = 1.0  # width / height; ``size`` is the long side (0.5625: a portrait phone video)
+    handheld_deg: float = 0.3  # realistic style: std of the phone's rotation jitter in degrees (0: a tripod)
+    outfit: str = ""  # realistic style: "top,bottom,hair,outer" (garments.TOPS, ...); empty: drawn from the seed
 
     def __post_init__(self) -> None:
         if self.size < 16:
             raise ValueError(f"size: must be >= 16 pixels, got {self.size}")
+        if self.style not in STYLES:
+            raise ValueError(f"style: unknown style {self.style!r}; one of {', '.join(STYLES)}")
+        if self.capture not in CAPTURES:
+            raise ValueError(f"capture: unknown capture {self.capture!r}; one of {', '.join(CAPTURES)}")
+        if not (isinstance(self.aspect, (int, float)) and 0.25 <= self.aspect <= 4.0):
+            raise ValueError(f"aspect: must lie in [0.25, 4] (width / height), got {self.aspect!r}")
+        if min(self.width, self.height) < 16:
+            raise ValueError(f"aspect: the short side would be {min(self.width, self.height)} pixels (< 16) at size {self.size}")
+        if not (isinstance(self.handheld_deg, (int, float)) and 0.0 <= self.handheld_deg <= 5.0):
+            raise ValueError(f"handheld_deg: must lie in [0, 5] degrees, got {self.handheld_deg!r}")
+        if self.style == "plain" and self.outfit:
+            raise ValueError(f"outfit: only the realistic style wears an outfit, got {self.outfit!r} with style 'plain'")
+        if self.outfit:
+            parts = self.outfit.split(",")
+            if len(parts) != 4:
+                raise ValueError(f"outfit: expected 'top,bottom,hair,outer' (tops {'/'.join(TOPS)}; bottoms {'/'.join(BOTTOMS)}; "
+                                 f"hair {'/'.join(HAIRSTYLES)}; outer {'/'.join(OUTERWEAR)}), got {self.outfit!r}")
+            try:
+                Outfit(*parts)
+            except ValueError as exc:
+                raise ValueError(f"outfit: {exc}") from None
         if self.frames < 2 + len(TEST_VIEWS):
             raise ValueError(f"frames: need at least {2 + len(TEST_VIEWS)} (training + one per test motion), got {self.frames}")
         if not 0.0 < self.test_fraction < 1.0:
@@ -73,6 +114,18 @@ class SynthConfig:
     @property
     def num_test(self) -> int:
         return max(len(TEST_VIEWS), int(round(self.frames * self.test_fraction)))
+
+    @property
+    def width(self) -> int:
+        return self.size if self.aspect >= 1 else 2 * int(round(self.size * self.aspect / 2))
+
+    @property
+    def height(self) -> int:
+        return self.size if self.aspect <= 1 else 2 * int(round(self.size / self.aspect / 2))
+
+    def scene_outfit(self) -> Outfit | None:
+        """The outfit asked for, or None (drawn from the seed)."""
+        return Outfit(*self.outfit.split(",")) if self.outfit else None
 
 
 def phenotype_from_seed(seed: int) -> dict[str, float]:
@@ -119,7 +172,7 @@ def plan_sequences(mesh: SkinnedMesh, cfg: SynthConfig) -> Sequences:
     n_train = cfg.frames - n_test
     center = np.array([0.0, 0.0, 0.5 * (mesh.vertices[:, 2].min() + mesh.vertices[:, 2].max())])
     K = framing_intrinsics(mesh, cfg)
-    parts = [motions.turn_in_place(sk, n_train, turns=cfg.coverage)]
+    parts = [_capture(sk, n_train, cfg)]
     views = [orbit_viewmat(center, np.deg2rad(TRAIN_VIEW[0]), np.deg2rad(TRAIN_VIEW[1]), TRAIN_VIEW[2])]
     counts = np.full(len(TEST_VIEWS), n_test // len(TEST_VIEWS))
     counts[: n_test % len(TEST_VIEWS)] += 1
@@ -137,11 +190,24 @@ def plan_sequences(mesh: SkinnedMesh, cfg: SynthConfig) -> Sequences:
     )
 
 
+def _capture(sk, frames: int, cfg: SynthConfig) -> motions.Motion:
+    """The training motion: the turn (``coverage`` of a turn from facing the camera), after a few steps towards
+    the camera for "steps"."""
+    if cfg.capture == "turn":
+        return motions.turn_in_place(sk, frames, turns=cfg.coverage)
+    n_walk = max(2, frames // 3)
+    walk = motions.walk(sk, n_walk, cycles=1.0, speed=2 * STEPS_REACH * motions.DEFAULT_FPS / n_walk)
+    walk_trans = walk.trans + np.array([0.0, STEPS_REACH, 0.0])  # from behind the centre to in front of it
+    turn = motions.turn_in_place(sk, frames - n_walk, turns=cfg.coverage)
+    turn_trans = turn.trans + np.array([walk_trans[-1, 0], walk_trans[-1, 1], 0.0])
+    return motions.Motion("train_turn", np.concatenate([walk.pose, turn.pose]), np.concatenate([walk_trans, turn_trans]))
+
+
 def framing_intrinsics(mesh: SkinnedMesh, cfg: SynthConfig) -> np.ndarray:
-    """Square-pixel K whose focal makes the rest body span ``cfg.fill`` of the image from the training camera."""
+    """Square-pixel K whose focal makes the rest body span ``cfg.fill`` of the image height from the training camera."""
     height = float(np.ptp(mesh.vertices[:, 2]))
-    f = cfg.fill * cfg.size * TRAIN_VIEW[2] / height
-    return intrinsics(f, f, cfg.size / 2, cfg.size / 2)
+    f = cfg.fill * cfg.height * TRAIN_VIEW[2] / height
+    return intrinsics(f, f, cfg.width / 2, cfg.height / 2)
 
 
 def build_body(cfg: SynthConfig) -> tuple[SkinnedMesh, dict[str, float]]:
@@ -151,57 +217,193 @@ def build_body(cfg: SynthConfig) -> tuple[SkinnedMesh, dict[str, float]]:
     return body.to_skinned_mesh(), phenotype
 
 
-def synthesize_subject(cfg: SynthConfig, out: str | Path, overwrite: bool = False, progress: bool = True) -> Subject:
-    """Render a synthetic subject into ``out`` (subject format, docs/formats.md) with a contact sheet."""
+class SubjectRenderer:
+    """A synthetic subject's image formation, from its config alone: the truth of the person at any pose and
+    camera (``person``) and what the camera recorded at each frame (``recorded``)."""
+
+    def __init__(self, cfg: SynthConfig, mesh: SkinnedMesh) -> None:
+        self.cfg, self.body = cfg, mesh
+        if cfg.style == "plain":
+            self.texture = bake_texture(mesh, seed=cfg.seed, size=cfg.texture_size)
+            self.scene = None
+        else:
+            self.scene = Scene(mesh, cfg.seed, cfg.scene_outfit(), cfg.texture_size)
+
+    def cameras(self, viewmat: np.ndarray) -> np.ndarray:
+        """The frames' cameras [N, 4, 4]: the planned ones turned by the phone's hand-held jitter (realistic)."""
+        if self.scene is None:
+            return viewmat
+        R = handheld(len(viewmat), self.cfg.handheld_deg, self.cfg.seed)  # [N, 3, 3] in the camera frame
+        out = viewmat.copy()
+        out[:, :3, :] = np.einsum("nab,nbc->nac", R, viewmat[:, :3, :])
+        return out
+
+    def person(self, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray, K: np.ndarray, width: int,
+               height: int) -> tuple[np.ndarray, np.ndarray]:
+        """The whole person (garments and hair included) at ``pose`` [J, 3], ``trans`` [3], sharp and clean
+        -> (rgb [H, W, 3] premultiplied on black, coverage mask [H, W])."""
+        pose, trans, K = np.asarray(pose, np.float64), np.asarray(trans, np.float64), np.asarray(K, np.float64)
+        if self.scene is None:
+            verts = self.body.pose(pose, trans)
+            return render_textured(self.body, verts, self.texture, viewmat, K, width, height, self.cfg.supersample)
+        return self.scene.person(self.scene.mesh.pose(pose, trans), viewmat, K, width, height, self.cfg.supersample)
+
+    def recorded(self, i: int, seq: Sequences, viewmat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Frame ``i`` as the camera recorded it -> (frame [H, W, 3] with its background, the subject's image
+        (frame x mask, premultiplied on black) [H, W, 3], the true person mask [H, W])."""
+        W, H = self.cfg.width, self.cfg.height
+        if self.scene is None:
+            rgb, mask = self.person(seq.pose[i], seq.trans[i], viewmat[i], seq.K[i], W, H)
+            return rgb, rgb, mask
+        samples = _shutter(self.scene.mesh, seq, viewmat, i, self.scene.sensor.shutter_samples)
+        frame, mask = self.scene.frame(samples, viewmat[i], seq.K[i], W, H, i, len(seq.pose), self.cfg.supersample)
+        return frame, frame * mask[..., None], mask
+
+
+BLUR_PX = 1.5  # the most any vertex may travel during the shutter, in pixels (slight motion blur)
+
+
+def _shutter(mesh: SkinnedMesh, seq: Sequences, viewmat: np.ndarray, i: int, samples: int) -> list[np.ndarray]:
+    """Posed vertices across the shutter of frame ``i``: ``samples`` instants between its poses and its sequence's
+    neighbours', open for a quarter of a frame interval either side or until a vertex travels ``BLUR_PX`` (a joint
+    that jumps by more than 0.5 rad, an axis-angle wrapping round, holds the frame's own rotation). -> [samples] [V, 3]"""
+    here = mesh.pose(seq.pose[i], seq.trans[i])
+    if samples <= 1:
+        return [here]
+    xy, _ = project(here, viewmat[i], seq.K[i])
+    out = []
+    for side in (-1, 1):
+        j = i + side
+        if not 0 <= j < len(seq.pose) or seq.sequence[j] != seq.sequence[i]:
+            out += [here] * (samples // 2)
+            continue
+        dp = seq.pose[j] - seq.pose[i]
+        dp *= (np.linalg.norm(dp, axis=-1) < 0.5)[:, None]
+        there = mesh.pose(seq.pose[i] + dp, seq.trans[j])
+        travel = float(np.max(np.linalg.norm(project(there, viewmat[i], seq.K[i])[0] - xy, axis=1)))
+        reach = min(0.25, BLUR_PX / max(travel, 1e-9))
+        for t in np.linspace(0, reach, samples // 2 + 1)[1:]:
+            out.append(mesh.pose(seq.pose[i] + t * dp, seq.trans[i] + t * (seq.trans[j] - seq.trans[i])))
+    return out
+
+
+def _sheet_picks(split: list[str], sequence: list[str], train: int = 8, per_test: int = 1) -> list[int]:
+    """Frames a contact sheet shows: ``train`` spread over the training frames, the middle of each test sequence."""
+    split_a, seq_a = np.asarray(split), np.asarray(sequence)
+    tr = np.flatnonzero(split_a == "train")
+    picks = [int(k) for k in tr[np.linspace(0, len(tr) - 1, train).astype(int)]]
+    for name in dict.fromkeys(sequence):
+        idx = np.flatnonzero(seq_a == name)
+        if name.startswith("test"):
+            picks += [int(k) for k in idx[np.linspace(len(idx) // 2, len(idx) - 1, per_test).astype(int)]]
+    return picks
+
+
+_WORKER: tuple | None = None  # (renderer, seq, viewmat) of a forked rendering process
+
+
+def _render_in_worker(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    renderer, seq, viewmat = _WORKER
+    return renderer.recorded(i, seq, viewmat)
+
+
+def _in_workers(renderer: SubjectRenderer, seq: Sequences, viewmat: np.ndarray, workers: int):
+    """Frames in order, rendered by ``workers`` forked processes (each frame depends on its index alone, so the
+    bytes are those of one process)."""
+    global _WORKER
+    _WORKER = (renderer, seq, viewmat)
+    try:
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            yield from pool.imap(_render_in_worker, range(len(seq.pose)), chunksize=2)
+    finally:
+        _WORKER = None
+
+
+def synthesize_subject(cfg: SynthConfig, out: str | Path, overwrite: bool = False, progress: bool = True,
+                       video: str | Path | None = None, workers: int | None = None) -> Subject:
+    """Render a synthetic subject into ``out`` (subject format, docs/formats.md) with a contact sheet; ``video``:
+    the training frames also as the MP4 a phone would have recorded (background, sensor and all), frame k of
+    the video being the subject's frame k. The realistic style renders in ``workers`` processes (default: the
+    CPUs this process may use, at most 4); the bytes do not depend on it."""
+    workers = min(4, len(os.sched_getaffinity(0))) if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"workers: must be >= 1, got {workers}")
+    if video is not None and Path(out).resolve() in (Path(video).resolve(), *Path(video).resolve().parents):
+        raise ValueError(f"video: {video} lies inside the subject folder `out` ({out}); write it beside the subject")
     mesh, phenotype = build_body(cfg)
-    texture = bake_texture(mesh, seed=cfg.seed, size=cfg.texture_size)
-    seq = plan_sequences(mesh, cfg)
-    stored = perturb_poses(seq.pose, cfg.pose_noise_deg, np.random.default_rng([cfg.seed, 2]))
+    renderer = SubjectRenderer(cfg, mesh)
+    planned = plan_sequences(mesh, cfg)
+    # Frames are rendered from the float32 values the subject stores, so TruthRenderer.recorded re-makes them exactly.
+    f32 = lambda a: np.asarray(a, np.float32).astype(np.float64)  # noqa: E731
+    seq = dataclasses.replace(planned, pose=f32(planned.pose), trans=f32(planned.trans), K=f32(planned.K))
+    viewmat = f32(renderer.cameras(planned.viewmat))
+    stored = perturb_poses(planned.pose, cfg.pose_noise_deg, np.random.default_rng([cfg.seed, 2]))
+    picks = set(_sheet_picks(seq.split, seq.sequence))
+    shown: dict[int, np.ndarray] = {}
+    writer = VideoWriter(video, VIDEO_FPS) if video is not None else None
 
     def frames():
-        for i in tqdm(range(cfg.frames), desc="synth: rendering", unit="frame", disable=None if progress else True):
-            verts = mesh.pose(seq.pose[i], seq.trans[i])
-            yield render_textured(mesh, verts, texture, seq.viewmat[i], seq.K[i], cfg.size, cfg.size, cfg.supersample)
+        made = _in_workers(renderer, seq, viewmat, workers) if cfg.style != "plain" and workers > 1 else \
+            (renderer.recorded(i, seq, viewmat) for i in range(cfg.frames))
+        for i, (frame, image, mask) in enumerate(tqdm(made, total=cfg.frames, desc="synth: rendering", unit="frame",
+                                                       disable=None if progress else True)):
+            if writer is not None and seq.split[i] == "train":
+                writer.write(frame)
+            if i in picks and cfg.style != "plain":
+                shown[i] = frame
+            yield image, mask
 
     # One render pass feeds both iterables; tee holds only what one side has read ahead.
     for_images, for_masks = itertools.tee(frames())
-    subject = save_subject(
-        out,
-        body=mesh,
-        poses=stored.astype(np.float32),
-        trans=seq.trans.astype(np.float32),
-        K=seq.K.astype(np.float32),
-        viewmat=seq.viewmat.astype(np.float32),
-        split=seq.split,
-        sequence=seq.sequence,
-        images=(rgb for rgb, _ in for_images),
-        masks=(mask for _, mask in for_masks),
-        width=cfg.size,
-        height=cfg.size,
-        body_model=cfg.body_model,
-        phenotype=phenotype,
-        generator={"tool": "trioman synth", "version": __version__, **dataclasses.asdict(cfg)},
-        poses_true=seq.pose.astype(np.float32),
-        overwrite=overwrite,
-    )
-    write_png(Path(out) / "contact_sheet.png", subject_contact_sheet(subject))
+    try:
+        subject = save_subject(
+            out,
+            body=mesh,
+            poses=stored.astype(np.float32),
+            trans=seq.trans.astype(np.float32),
+            K=seq.K.astype(np.float32),
+            viewmat=viewmat.astype(np.float32),
+            split=seq.split,
+            sequence=seq.sequence,
+            images=(rgb for rgb, _ in for_images),
+            masks=(mask for _, mask in for_masks),
+            width=cfg.width,
+            height=cfg.height,
+            body_model=cfg.body_model,
+            phenotype=phenotype,
+            generator={"tool": "trioman synth", "version": __version__, **dataclasses.asdict(cfg)},
+            poses_true=seq.pose.astype(np.float32),
+            overwrite=overwrite,
+        )
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    if writer is not None:
+        writer.close()
+    write_png(Path(out) / "contact_sheet.png", subject_contact_sheet(subject, recorded=shown))
     return subject
 
 
-def subject_contact_sheet(subject: Subject, train: int = 8, per_test: int = 1) -> np.ndarray:
-    """Sampled training frames and the middle of each test sequence, captioned."""
-    picks = list(subject.indices("train")[np.linspace(0, len(subject.indices("train")) - 1, train).astype(int)])
-    for name in subject.sequences:
-        idx = subject.indices(sequence=name)
-        if name.startswith("test"):
-            picks += list(idx[np.linspace(len(idx) // 2, len(idx) - 1, per_test).astype(int)])
-    labels = [f"{subject.frame_names[i]} {subject.sequence[i].replace('test_', '')}" for i in picks]
-    return contact_sheet([subject.image(i) for i in picks], labels, cols=6)
+def subject_contact_sheet(subject: Subject, recorded: dict[int, np.ndarray] | None = None) -> np.ndarray:
+    """Sampled training frames and the middle of each test sequence, captioned; with ``recorded`` (frame index ->
+    the camera's frame), each of those beside the subject's masked image."""
+    picks = _sheet_picks(list(subject.split), list(subject.sequence))
+    images, labels = [], []
+    for i in picks:
+        label = f"{subject.frame_names[i]} {subject.sequence[i].replace('test_', '')}"
+        if recorded and i in recorded:
+            images.append(recorded[i])
+            labels.append(f"{label} video")
+        images.append(subject.image(i))
+        labels.append(label)
+    return contact_sheet(images, labels, cols=6)
 
 
 class TruthRenderer:
-    """A synthetic subject's own mesh renderer, rebuilt from its subject.json: the truth at any pose and camera
-    (the ceiling of augmentation: what a perfect Refiner would return at a Generator draw)."""
+    """A synthetic subject's own renderer, rebuilt from its subject.json: the truth of the whole person (garments
+    and hair included) at any pose and camera (the ceiling of augmentation: what a perfect Refiner would return
+    at a Generator draw), and each stored frame exactly as it was recorded."""
 
     def __init__(self, subject: Subject) -> None:
         made = dict(subject.meta.get("generator", {}))
@@ -211,15 +413,22 @@ class TruthRenderer:
         made.pop("version", None)
         self.cfg = SynthConfig(**made)
         self.mesh, _ = build_body(self.cfg)
-        self.texture = bake_texture(self.mesh, seed=self.cfg.seed, size=self.cfg.texture_size)
+        self.renderer = SubjectRenderer(self.cfg, self.mesh)
+        self.subject = subject
         self.poses_true = subject.poses if subject.poses_true is None else subject.poses_true
         self.poses, self.width, self.height = subject.poses, subject.width, subject.height
 
     def render(self, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """-> (rgb [H, W, 3] on black, mask [H, W]) of the body at ``pose`` [J, 3], ``trans`` [3]."""
-        verts = self.mesh.pose(np.asarray(pose, np.float64), np.asarray(trans, np.float64))
-        return render_textured(self.mesh, verts, self.texture, viewmat, np.asarray(K, np.float64), self.width, self.height,
-                               self.cfg.supersample)
+        """-> (rgb [H, W, 3] on black, mask [H, W]) of the person at ``pose`` [J, 3], ``trans`` [3]."""
+        return self.renderer.person(pose, trans, viewmat, K, self.width, self.height)
+
+    def recorded(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stored frame ``index`` re-made: (the camera's frame, the subject's image, its mask); equals the files."""
+        s = self.subject
+        seq = Sequences(pose=np.asarray(self.poses_true, np.float64), trans=np.asarray(s.trans, np.float64),
+                        K=np.asarray(s.K, np.float64), viewmat=np.asarray(s.viewmat, np.float64),
+                        split=list(s.split), sequence=list(s.sequence))
+        return self.renderer.recorded(index, seq, seq.viewmat)
 
     def at_draw(self, index: int, candidate, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The truth at a Generator candidate of frame ``index``: the candidate's pose change applied to the frame's

@@ -153,8 +153,9 @@ def _pattern(label: np.ndarray, p: np.ndarray, mesh: SkinnedMesh, pal: Palette, 
     return np.clip(col, 0.0, 1.0)
 
 
-def bake_texture(mesh: SkinnedMesh, seed: int, size: int = 1024) -> np.ndarray:
-    """The subject's texture atlas. -> [size, size, 3] float32 in [0, 1] (row 0 is v = 1)."""
+def bake_texture(mesh: SkinnedMesh, seed: int, size: int = 1024, garments: bool = True) -> np.ndarray:
+    """The subject's texture atlas; ``garments=False``: skin and eyes only (the realistic style's garments and
+    hair are meshes of their own). -> [size, size, 3] float32 in [0, 1] (row 0 is v = 1)."""
     if mesh.uvs is None:
         raise ValueError("uvs: the body mesh has no texture coordinates to bake a texture into")
     rng = np.random.default_rng(seed)
@@ -163,7 +164,10 @@ def bake_texture(mesh: SkinnedMesh, seed: int, size: int = 1024) -> np.ndarray:
     frags = rasterize_screen(xy, np.ones(len(xy)), mesh.uv_faces, size, size, perspective=False)
     covered = frags.face_id >= 0
     labels = np.full((size, size), -1)
-    labels[covered] = _face_labels(vertex_labels(mesh), mesh.faces)[frags.face_id[covered]]
+    vertex_label = vertex_labels(mesh)
+    if not garments:
+        vertex_label = np.where(vertex_label == EYES, EYES, SKIN)
+    labels[covered] = _face_labels(vertex_label, mesh.faces)[frags.face_id[covered]]
     pos = interpolate(frags, mesh.vertices, mesh.faces)
     tex = np.zeros((size, size, 3))
     tex[covered] = _pattern(labels[covered], pos[covered].astype(np.float64), mesh, palette, rng)
