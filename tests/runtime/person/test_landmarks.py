@@ -1,0 +1,71 @@
+"""The crop geometry and the resampling of the landmark stage on synthetic inputs: the region of interest from
+two points, the crop <-> frame maps, OpenCV 4's fixed-point bilinear warp, the heatmap refinement."""
+
+import math
+
+import numpy as np
+import pytest
+
+from trioman.runtime.person.landmarks import Roi, crop_matrix, estimate, normalize_radians, refine_from_heatmap, roi_from_points
+from trioman.runtime.person.warp import crop_homography, warp_bilinear
+
+
+def test_roi_from_points():
+    # The scale point straight above the centre: no rotation, side 2 * 1.25 * distance.
+    roi = roi_from_points(np.array([100.0, 200.0]), np.array([100.0, 120.0]))
+    assert roi.center == (100.0, 200.0) and roi.size == pytest.approx(200.0) and roi.rotation == pytest.approx(0.0)
+    # To the right of it: the body lies along +x, the crop turns by +90 degrees (clockwise on screen).
+    assert roi_from_points(np.array([0.0, 0.0]), np.array([10.0, 0.0])).rotation == pytest.approx(math.pi / 2)
+    assert normalize_radians(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
+    assert -math.pi <= normalize_radians(math.pi) < math.pi
+
+
+def test_crop_maps_agree():
+    roi = Roi((300.0, 200.0), 120.0, 0.4)
+    m = crop_matrix(roi)  # crop px -> frame px
+    np.testing.assert_allclose(m @ [128, 128, 1], roi.center, atol=1e-9)
+    # The crop's up direction (-v) points along the turned frame axis: R(0.4) (0, -1).
+    up = m @ [128, 0, 1] - m @ [128, 128, 1]
+    np.testing.assert_allclose(up, 60 * np.array([math.sin(0.4), -math.cos(0.4)]), atol=1e-9)
+    h = crop_homography(roi.center, roi.size, roi.rotation, 256)
+    for u, v in ((0, 0), (256, 0), (17, 200)):
+        p = h @ [u, v, 1]
+        np.testing.assert_allclose(p[:2] / p[2], m @ [u, v, 1], atol=1e-3)  # float32 corners in the homography
+    np.testing.assert_allclose(crop_matrix(roi, size=1) @ [0.5, 0.5, 1], roi.center)
+
+
+def test_warp_bilinear_fixed_point():
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    shift = np.array([[1.0, 0, 3], [0, 1, 2], [0, 0, 1]])  # an integer shift copies pixels
+    np.testing.assert_array_equal(warp_bilinear(image, shift, 30, replicate=True), image[2:32, 3:33])
+    # Half a pixel to the right: weights 16/32 each in 15-bit fixed point, rounded half up.
+    half = warp_bilinear(image, np.array([[1.0, 0, 0.5], [0, 1, 0], [0, 0, 1]]), 30, replicate=True)
+    a, b = image[:30, :30].astype(int), image[:30, 1:31].astype(int)
+    np.testing.assert_array_equal(half, (a * 16384 + b * 16384 + 16384) >> 15)
+    # Outside the frame: edge pixels (replicate) or black, mixed in over the last pixel.
+    far = np.array([[1.0, 0, -100], [0, 1, 0], [0, 0, 1]])
+    np.testing.assert_array_equal(warp_bilinear(image, far, 10, replicate=True)[:, :10], np.repeat(image[:10, :1], 10, 1))
+    assert not warp_bilinear(image, far, 10, replicate=False).any()
+    edge = warp_bilinear(image, np.array([[1.0, 0, -0.5], [0, 1, 0], [0, 0, 1]]), 4, replicate=False)
+    np.testing.assert_array_equal(edge[:, 0], (image[:4, 0].astype(int) * 16384 + 16384) >> 15)
+
+
+def test_refine_from_heatmap():
+    heat = np.full((64, 64, 3), -20.0, np.float32)  # sigmoid ~ 0: nothing to refine towards
+    heat[10, 20, 0] = heat[10, 22, 0] = 20.0  # two peaks: the mean cell (21, 10) in cell units
+    heat[40, 40, 1] = 0.0  # peak 0.5 reaches min_confidence_to_refine; the window's other cells weigh ~0
+    points = np.array([[21.3 / 64, 10.6 / 64], [40.9 / 64, 40.2 / 64], [-0.5, 0.5]])
+    out = refine_from_heatmap(points, heat)
+    np.testing.assert_allclose(out[0], [21 / 64, 10 / 64], atol=1e-6)
+    np.testing.assert_allclose(out[1], [40 / 64, 40 / 64], atol=1e-6)
+    np.testing.assert_array_equal(out[2], points[2])  # off the heatmap: kept
+    heat[40, 40, 1] = -0.1  # below 0.5: kept
+    np.testing.assert_array_equal(refine_from_heatmap(points, heat)[1], points[1])
+
+
+def test_estimate_rejects_a_bad_roi(models):
+    image = np.zeros((64, 64, 3), np.uint8)
+    for roi in (Roi((10.0, 10.0), 0.0, 0.0), Roi((float("nan"), 10.0), 20.0, 0.0), Roi((10.0, 10.0), 20.0, float("inf"))):
+        with pytest.raises(ValueError, match=r"^roi: expected a finite centre and rotation and a side > 0"):
+            estimate(models.landmarks, image, roi)
