@@ -151,6 +151,7 @@ class AblationBenchConfig:
     subjects: int = 10  # training subjects of a corpus built here
     heldout: int = 3  # held-out subjects of a corpus built here
     baseline_frames: str = "all"  # the one corpus variant the Refiners and the Examiner train on
+    style: str = "plain"  # the synth style of a corpus built here
     refiner_steps: int = 1000  # training steps of each Refiner
     refiner_size: str = "compact"  # the Refiners' widths
     examiner: str = "examiner_nano"  # the Examiner's config name
@@ -428,7 +429,7 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     corpus, out = Path(config.corpus), Path(config.out)
     if not (corpus / CORPUS_JSON).is_file():
         build_corpus(corpus, CorpusConfig(train_subjects=config.subjects, heldout_subjects=config.heldout, size=config.size,
-                                          baseline_frames=config.baseline_frames))
+                                          baseline_frames=config.baseline_frames, style=config.style))
     meta = json.loads((corpus / CORPUS_JSON).read_text())
     heldout = [s["name"] for s in meta["subjects"] if s["role"] == "heldout"]
     names = list(config.ablation_subjects) if config.ablation_subjects else heldout

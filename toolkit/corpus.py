@@ -25,8 +25,13 @@ class CorpusConfig:
     iterations: int = 600  # baseline training iterations (quick preset otherwise)
     baseline_frames: str = "all"  # "all" | "subset" (training subjects; held-out: train split)
     subset_stride: int = 4
+    style: str = "plain"  # the subjects' synth style (toolkit/synth/subject.py): "plain" or "realistic"
 
     def __post_init__(self) -> None:
+        from trioman.toolkit.synth.subject import STYLES
+
+        if self.style not in STYLES:
+            raise ValueError(f"style: unknown style {self.style!r}; one of {', '.join(STYLES)}")
         if self.train_subjects < 1 or self.heldout_subjects < 1:
             raise ValueError(f"train_subjects/heldout_subjects: need >= 1 each, got {self.train_subjects}/{self.heldout_subjects}")
         if self.baseline_frames not in ("all", "subset"):
@@ -77,7 +82,8 @@ def _build_subject(root: Path, cfg: CorpusConfig, i: int, progress: bool) -> Non
     name, role = cfg.names[i]
     subject, run, trip = _paths(root, cfg, name, role)
     if not (subject / "subject.json").is_file():
-        synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames), subject, progress=progress)
+        synthesize_subject(SynthConfig(seed=cfg.seed + i, size=cfg.size, frames=cfg.frames, style=cfg.style), subject,
+                           progress=progress)
     if not finished(run, cfg.iterations):
         frames = {"frames": "all"} if role == "train" else {}
         if role == "train" and cfg.baseline_frames == "subset":

@@ -28,7 +28,7 @@ FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
     "detail_sigma", "coverage", "pose_noise", "reach", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
-    "variants", "ablation_subjects", "jobs")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
+    "variants", "ablation_subjects", "jobs", "style", "aspect")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64)")
     parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--style", choices=("plain", "realistic"), default=None,
+                        help="synth: the subject's style; ablation: the style of a corpus built here (default plain)")
+    parser.add_argument("--aspect", type=float, default=None, metavar="W/H",
+                        help="synth: image width / height, e.g. 0.5625 for a portrait phone video (default 1)")
     parser.add_argument("--presets", default="quick,full", help="train: presets to run, comma-separated")
     parser.add_argument("--full-iterations", type=int, default=None, help="train: cap the full preset's iterations")
     parser.add_argument("--eval-every", type=int, default=250, help="train: test evaluation interval (iterations)")

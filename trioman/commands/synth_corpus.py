@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 # The parameters the library's errors name (runtime/shards.py, toolkit/corpus.py) -> the flags as typed.
-FLAGS = {"shard": "--shard", "merge": "--merge"}
+FLAGS = {"shard": "--shard", "merge": "--merge", "style": "--style"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,6 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all",
                         help="what training subjects' baselines see: all frames (paper) or every 4th (default all)")
     parser.add_argument("--seed", type=int, default=1000, help="first subject seed (default 1000)")
+    parser.add_argument("--style", choices=("plain", "realistic"), default="plain",
+                        help="the subjects' synth style (trioman synth --style; default plain)")
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--shard", metavar="I/N", help="build only the subjects of shard I of N (0 <= I < N), no corpus.json")
     parser.add_argument("--merge", action="store_true",
@@ -40,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--merge: runs after the --shard jobs, not with --shard")
     shard = None if args.shard is None else Shard.parse(args.shard)
     cfg = CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size, frames=args.frames,
-                       seed=args.seed, iterations=args.iterations, baseline_frames=args.baseline_frames)
+                       seed=args.seed, iterations=args.iterations, baseline_frames=args.baseline_frames,
+                       style=args.style)
     t = time.perf_counter()
     if args.merge:
         root = merge_corpus(args.out, cfg)
