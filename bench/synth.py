@@ -55,7 +55,7 @@ def bench_synth(config: SynthBenchConfig) -> dict:
         t_render = (time.perf_counter() - t) / n
         return {
             "target": "synth", "machine": machine(), "size": cfg.size, "width": cfg.width, "height": cfg.height,
-            "style": cfg.style, "frames": cfg.frames, "frames_written": subject.num_frames, "total_s": round(total, 2),
+            "style": cfg.style, "aspect": cfg.aspect, "frames": cfg.frames, "frames_written": subject.num_frames, "total_s": round(total, 2),
             "peak_rss_mib": round(peak, 1), "body_model_s": round(t_body, 3), "appearance_s": round(t_look, 3),
             "render_ms_per_frame": round(1e3 * t_render, 2), "target_total_s": TARGET_S[cfg.style],
         }
@@ -66,7 +66,7 @@ def bench_synth(config: SynthBenchConfig) -> dict:
 def synth_markdown(r: dict) -> str:
     ok = "yes" if r["total_s"] <= r["target_total_s"] else "NO"
     look = "texture bake" if r["style"] == "plain" else "outfit, skin texture and room"
-    aspect = "" if r["width"] == r["height"] else f" --aspect {r['width']}:{r['height']}"
+    aspect = "" if r["aspect"] == 1 else f" --aspect {r['aspect']}"
     return "\n".join([
         f"# trioman bench synth ({r['style']}, {r['width']}x{r['height']}, {r['frames']} frames)",
         "",
