@@ -67,9 +67,11 @@ def roi_from_points(center: np.ndarray,  # [2] px: the hips' centre
 
 
 def crop_matrix(roi: Roi, size: int = INPUT_SIZE) -> np.ndarray:
-    """[2, 3] affine map from crop pixels (``size`` x ``size``) to frame pixels: crop pixel (u, v) is the frame
-    point ``center + R(rotation) ((u / size - 0.5) side, (v / size - 0.5) side)`` (ImageToTensorCalculator's
-    warp of the rotated rectangle's corners onto the tensor's)."""
+    """[2, 3] affine map from crop coordinates (``size`` x ``size``) to frame pixels: crop point (u, v) is the
+    frame point ``center + R(rotation) ((u / size - 0.5) side, (v / size - 0.5) side)``. With ``size`` 1 it
+    un-projects normalised landmarks (LandmarkProjectionCalculator); with 256 it carries the mask back
+    (WarpAffineCalculator); the input crop itself is ``warp.crop_homography``, the same map built as
+    MediaPipe builds it."""
     c, s = math.cos(roi.rotation), math.sin(roi.rotation)
     r = np.array([[c, -s], [s, c]])
     a = r * (roi.size / size)
