@@ -77,7 +77,6 @@ class TfliteModel:
             from ai_edge_litert.interpreter import Interpreter
         except ImportError:
             raise MissingModelsError(f"person models: ai-edge-litert, which runs them, is not installed: {INSTALL_HINT}") from None
-        self.name = name
         self._interpreter: Any = Interpreter(model_path=str(path), num_threads=threads)
         self._interpreter.allocate_tensors()
         inputs = self._interpreter.get_input_details()

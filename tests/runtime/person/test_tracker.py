@@ -3,6 +3,7 @@ detector, the inputs it refuses, and the error that names the install when the m
 
 import importlib.metadata
 
+import cv2
 import numpy as np
 import pytest
 
@@ -41,6 +42,20 @@ def test_astronaut_is_cut_by_the_frame_edge(tracker, astronaut):
     # World landmarks: metres about the hips' centre, shoulders ~0.3 m apart.
     assert 0.2 < np.linalg.norm(out.world[11] - out.world[12]) < 0.5
     np.testing.assert_allclose((out.world[23] + out.world[24]) / 2, 0, atol=0.05)
+
+
+def test_two_people_and_low_confidence(models, astronaut):
+    # Two astronauts (384 px) 200 px apart: the detector finds both (scores ~0.84 and ~0.81).
+    small = cv2.resize(astronaut, (384, 384), interpolation=cv2.INTER_AREA)
+    pair = np.full((400, 968, 3), 90, np.uint8)
+    pair[:384, :384], pair[:384, 584:] = small, small
+    out = PersonTracker(models=models)(pair)
+    assert out.status == "two_people" and out.people == 2, out.reason
+    assert out.reason.startswith("the detector found 2 people (scores 0.")
+    # With the edge tests off and a person flag of 1 asked for, she is a low-confidence frame.
+    strict = TrackerConfig(edge_margin=1e6, edge_mask_fraction=1.0, min_person_score=1.0)
+    out = PersonTracker(strict, models=models)(astronaut)
+    assert out.status == "low_confidence" and out.reason.startswith("person flag 0.9") and "(min 1)" in out.reason
 
 
 def test_verdicts_on_opencv_doc_pictures(tracker):
