@@ -19,14 +19,31 @@ INTER_BITS = 5  # the source point's fraction, in 1/32 pixel
 INTER_TAB_SIZE = 1 << INTER_BITS
 
 
+def box_points(center: tuple[float, float], side: float, rotation: float) -> np.ndarray:
+    """The corners of MediaPipe's ``cv::RotatedRect(center, (side, side), rotation * 180.f / M_PI)``: [4, 2]
+    float32, bottom-left, top-left, top-right, bottom-right of the turned square. OpenCV 4's
+    ``RotatedRect::points`` in float32 arithmetic, term by term (modules/core/src/types.cpp); OpenCV 5's
+    ``boxPoints`` rounds the last two corners otherwise, which moves the crop's rounding."""
+    f = np.float32
+    cx, cy, s = f(center[0]), f(center[1]), f(side)
+    angle = f(f(f(rotation) * f(180.0)) / math.pi)  # degrees, as the ImageToTensor converter passes them
+    radians = float(angle) * math.pi / 180.0
+    b = f(f(math.cos(radians)) * f(0.5))
+    a = f(f(math.sin(radians)) * f(0.5))
+    p0 = (cx - a * s - b * s, cy + b * s - a * s)
+    p1 = (cx + a * s - b * s, cy - b * s - a * s)
+    p2 = (f(2) * cx - p0[0], f(2) * cy - p0[1])
+    p3 = (f(2) * cx - p1[0], f(2) * cy - p1[1])
+    return np.array([p0, p1, p2, p3], np.float32)
+
+
 def crop_homography(center: tuple[float, float], side: float, rotation: float, size: int) -> np.ndarray:
     """[3, 3]: crop pixel -> frame point, for the square of ``side`` px about ``center`` turned by ``rotation``
-    (radians) onto a ``size`` x ``size`` crop. Built as ImageToTensorConverterOpenCv builds it: the corners of
-    the float32 ``cv::RotatedRect`` onto the crop's corners (``getPerspectiveTransform``), then inverted as
+    (radians) onto a ``size`` x ``size`` crop. Built as ImageToTensorConverterOpenCv builds it: the corners
+    (``box_points``) onto the crop's corners (``getPerspectiveTransform``), then inverted as
     ``warpPerspective`` inverts it."""
-    corners = cv2.boxPoints(((center[0], center[1]), (side, side), rotation * 180.0 / math.pi))  # [4, 2] float32
     target = np.array([[0, size], [0, 0], [size, 0], [size, size]], np.float32)
-    return cv2.invert(cv2.getPerspectiveTransform(corners, target))[1]
+    return cv2.invert(cv2.getPerspectiveTransform(box_points(center, side, rotation), target))[1]
 
 
 def warp_bilinear(image: np.ndarray,  # [H, W, C] uint8

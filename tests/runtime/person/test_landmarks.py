@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from trioman.runtime.person.landmarks import Roi, crop_matrix, estimate, normalize_radians, refine_from_heatmap, roi_from_points
-from trioman.runtime.person.warp import crop_homography, warp_bilinear
+from trioman.runtime.person.warp import box_points, crop_homography, warp_bilinear
 
 
 def test_roi_from_points():
@@ -32,6 +32,17 @@ def test_crop_maps_agree():
         p = h @ [u, v, 1]
         np.testing.assert_allclose(p[:2] / p[2], m @ [u, v, 1], atol=1e-3)  # float32 corners in the homography
     np.testing.assert_allclose(crop_matrix(roi, size=1) @ [0.5, 0.5, 1], roi.center)
+
+
+def test_box_points_are_opencv4s():
+    # OpenCV 4.10's cv2.boxPoints (the one MediaPipe 0.10.21 links) for the astronaut's crop; OpenCV 5.1's gives
+    # [878.1895751953125, 4.598228454589844] and [678.1428833007812, 1243.4722900390625] for the last two corners.
+    corners = box_points((158.72918701171875, 524.0119018554688), 1254.92138671875, 0.16009271144866943)
+    assert corners.dtype == np.float32
+    assert corners.tolist() == [[-560.7311401367188, 1043.4256591796875], [-360.6844787597656, -195.44845581054688],
+                                [878.1895141601562, 4.59814453125], [678.142822265625, 1243.4722900390625]]
+    axis = box_points((10.0, 20.0), 8.0, 0.0)  # unturned: bottom-left, top-left, top-right, bottom-right
+    assert axis.tolist() == [[6, 24], [6, 16], [14, 16], [14, 24]]
 
 
 def reference_warp(image: np.ndarray, matrix: np.ndarray, size: int, replicate: bool) -> np.ndarray:
