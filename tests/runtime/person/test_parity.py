@@ -1,13 +1,14 @@
 """The person model against MediaPipe itself: the pose graph that ``mediapipe.solutions.pose`` runs
 (mediapipe/modules/pose_landmark/pose_landmark_cpu.binarypb from the mediapipe 0.10.21 wheel; model_complexity
-1, static images, segmentation on), here run by ``mediapipe.CalculatorGraph`` straight from that file. On real
-pictures (scikit-image's astronaut, Debian opencv-doc's when installed). The reference runs only where the
-wheel and a protobuf below 7 are installed (``make install``); elsewhere the test skips and says why.
+1, static images, segmentation on), run by ``mediapipe.CalculatorGraph`` straight from that file, on real
+pictures (scikit-image's astronaut, Debian opencv-doc's when installed). Without the wheel (``make install``
+brings it) the test skips and says why.
 
-``mediapipe.solutions.pose.Pose`` rebuilds the graph's config in Python first; under protobuf 6 its landmarks
-then match a 9 x 9 heatmap window (the option's default) to 0.03 px, not the graph's ``kernel_size: 7``, so
-the test runs the graph as MediaPipe's C++ reads it. Measured (docs/fit.md): the detector to 1e-7, keypoints
-0.003-0.024 px apart on average, 0.71 px at most; visibility 4e-4, world landmarks 7e-4 m; mask IoU 0.999.
+``mediapipe.solutions.pose.Pose`` is not the reference: it rebuilds the graph's config with the Python
+protobuf first, which fails under protobuf 7 and, under protobuf 6, gives landmarks that match a 9 x 9
+heatmap window (the option's default) to 0.03 px rather than the graph's ``kernel_size: 7``. Measured
+(docs/fit.md): the detector to 1e-7, keypoints 0.003-0.024 px apart on average, 0.71 px at most; visibility
+4e-4, world landmarks 7e-4 m; mask IoU 0.999.
 """
 
 import os
@@ -24,23 +25,20 @@ VISIBILITY = 0.002
 WORLD_M = 0.002
 MASK_IOU = 0.99
 STREAMS = ("pose_landmarks", "pose_world_landmarks", "pose_detection")
+GRAPH = "mediapipe/modules/pose_landmark/pose_landmark_cpu.binarypb"  # mediapipe.solutions.pose's graph
 
 
 @pytest.fixture(scope="module")
 def reference():
     """MediaPipe's pose graph as a function: image -> its output packets by stream name."""
     mp = pytest.importorskip("mediapipe", reason="the reference is the mediapipe 0.10.21 wheel: make install")
-    try:
-        from mediapipe.python._framework_bindings import resource_util
-        from mediapipe.python.solutions import pose
-    except Exception as err:  # protobuf 7 breaks mediapipe 0.10.21's Python side
-        pytest.skip(f"mediapipe {mp.__version__}'s Python side does not load here ({type(err).__name__}: {err}); "
-                    "it needs protobuf < 7 (pip install 'protobuf>=6.31.1,<7')")
+    from mediapipe.python._framework_bindings import resource_util
+
     root = os.path.dirname(os.path.dirname(mp.__file__))
     resource_util.set_resource_dir(root)
 
     def run(image: np.ndarray) -> dict:
-        graph = mp.CalculatorGraph(binary_graph_path=os.path.join(root, pose._BINARYPB_FILE_PATH))
+        graph = mp.CalculatorGraph(binary_graph_path=os.path.join(root, GRAPH))
         out = {}
         for name in STREAMS:
             graph.observe_output_stream(name, lambda n, p: out.__setitem__(n, mp.packet_getter.get_proto(p)))
