@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from trioman.toolkit.synth.texture import _CLOTH, _HAIR, _decal, _planar
+from trioman.toolkit.synth.texture import CLOTH, HAIR_COLOURS, decal, planar
 
 TOP_PATTERNS = ("solid", "stripes", "check", "dots", "logo")
 BOTTOM_PATTERNS = ("denim", "solid", "check")
@@ -56,14 +56,14 @@ class Look:
     @classmethod
     def from_seed(cls, seed: int) -> "Look":
         rng = np.random.default_rng([seed, 8])
-        a, b, c, d = rng.choice(len(_CLOTH), size=4, replace=False)
+        a, b, c, d = rng.choice(len(CLOTH), size=4, replace=False)
         bottom_pattern = str(rng.choice(BOTTOM_PATTERNS))
-        bottom = np.array([0.16, 0.24, 0.42]) * rng.uniform(0.8, 1.2) if bottom_pattern == "denim" else 0.65 * _CLOTH[c]
+        bottom = np.array([0.16, 0.24, 0.42]) * rng.uniform(0.8, 1.2) if bottom_pattern == "denim" else 0.65 * CLOTH[c]
         dark = rng.random() < 0.5
         return cls(
-            seed=seed, top=_CLOTH[a], top_second=_CLOTH[b], top_pattern=str(rng.choice(TOP_PATTERNS)),
-            bottom=np.clip(bottom, 0, 1), bottom_pattern=bottom_pattern, coat=0.55 * _CLOTH[d] + 0.05,
-            hair=_HAIR[rng.integers(len(_HAIR))], shoes=np.array([0.1, 0.1, 0.12]) if dark else np.array([0.9, 0.9, 0.88]),
+            seed=seed, top=CLOTH[a], top_second=CLOTH[b], top_pattern=str(rng.choice(TOP_PATTERNS)),
+            bottom=np.clip(bottom, 0, 1), bottom_pattern=bottom_pattern, coat=0.55 * CLOTH[d] + 0.05,
+            hair=HAIR_COLOURS[rng.integers(len(HAIR_COLOURS))], shoes=np.array([0.1, 0.1, 0.12]) if dark else np.array([0.9, 0.9, 0.88]),
             sole=np.array([0.85, 0.85, 0.82]) if dark else np.array([0.25, 0.22, 0.2]), mark=str(rng.integers(10, 100)),
         )
 
@@ -73,7 +73,7 @@ _LOGO_CACHE: dict[str, np.ndarray] = {}
 
 def _logo(text: str) -> np.ndarray:
     if text not in _LOGO_CACHE:
-        _LOGO_CACHE[text] = cv2.GaussianBlur(_decal(text, 256), (3, 3), 0)
+        _LOGO_CACHE[text] = cv2.GaussianBlur(decal(text, 256), (3, 3), 0)
     return _LOGO_CACHE[text]
 
 
@@ -96,7 +96,7 @@ def albedo(material: str, p: np.ndarray, look: Look, chest_z: float, sole_z: flo
             d = np.linalg.norm(cell - np.round(cell), axis=1)
             base = np.where((d < 0.22)[:, None], second, base)
         elif look.top_pattern == "logo":
-            mark = _planar(_logo(look.mark), (x + 0.09) / 0.18, (chest_z + 0.03 - z) / 0.18) * (y < -0.02)
+            mark = planar(_logo(look.mark), (x + 0.09) / 0.18, (chest_z + 0.03 - z) / 0.18) * (y < -0.02)
             base = base * (1 - mark[:, None]) + second * mark[:, None]
         out = base * (grain * blotch)[:, None]
     elif material == "bottom":

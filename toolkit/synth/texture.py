@@ -21,8 +21,8 @@ SKIN, HAIR, TOP, TROUSERS, SHOES, EYES = range(6)
 LABEL_NAMES = ("skin", "hair", "top", "trousers", "shoes", "eyes")
 
 _SKIN_TONES = np.array([[0.93, 0.76, 0.64], [0.84, 0.64, 0.49], [0.70, 0.51, 0.37], [0.52, 0.36, 0.25], [0.36, 0.24, 0.17]])
-_HAIR = np.array([[0.10, 0.07, 0.05], [0.28, 0.17, 0.09], [0.55, 0.38, 0.20], [0.80, 0.66, 0.42], [0.18, 0.18, 0.20]])
-_CLOTH = np.array(
+HAIR_COLOURS = np.array([[0.10, 0.07, 0.05], [0.28, 0.17, 0.09], [0.55, 0.38, 0.20], [0.80, 0.66, 0.42], [0.18, 0.18, 0.20]])
+CLOTH = np.array(
     [[0.75, 0.12, 0.12], [0.12, 0.32, 0.70], [0.10, 0.50, 0.28], [0.90, 0.72, 0.15], [0.45, 0.18, 0.55],
      [0.92, 0.45, 0.10], [0.10, 0.55, 0.60], [0.85, 0.85, 0.82], [0.20, 0.22, 0.28], [0.60, 0.45, 0.30]]
 )
@@ -41,15 +41,15 @@ class Palette:
 
     @classmethod
     def from_seed(cls, rng: np.random.Generator) -> "Palette":
-        top, stripe, trousers, check = rng.choice(len(_CLOTH), size=4, replace=False)
+        top, stripe, trousers, check = rng.choice(len(CLOTH), size=4, replace=False)
         shoes = np.array([0.12, 0.12, 0.14]) if rng.random() < 0.5 else np.array([0.88, 0.88, 0.86])
         return cls(
             skin=_SKIN_TONES[rng.integers(len(_SKIN_TONES))],
-            hair=_HAIR[rng.integers(len(_HAIR))],
-            top=_CLOTH[top],
-            top_stripe=_CLOTH[stripe],
-            trousers=0.6 * _CLOTH[trousers],
-            trousers_check=0.6 * _CLOTH[check] + 0.2,
+            hair=HAIR_COLOURS[rng.integers(len(HAIR_COLOURS))],
+            top=CLOTH[top],
+            top_stripe=CLOTH[stripe],
+            trousers=0.6 * CLOTH[trousers],
+            trousers_check=0.6 * CLOTH[check] + 0.2,
             shoes=shoes,
             mark=str(rng.integers(10, 100)),
         )
@@ -85,7 +85,7 @@ def _face_labels(labels: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.where(b == c, b, a)
 
 
-def _decal(text: str, size: int = 128) -> np.ndarray:
+def decal(text: str, size: int = 128) -> np.ndarray:
     """A printed mark: ring, star and text, white on transparent. -> [size, size] coverage in [0, 1]."""
     img = np.zeros((size, size), np.uint8)
     cv2.circle(img, (size // 2, size // 2), size // 2 - 4, 255, 5, cv2.LINE_AA)
@@ -96,7 +96,7 @@ def _decal(text: str, size: int = 128) -> np.ndarray:
     return img.astype(np.float32) / 255.0
 
 
-def _planar(decal: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def planar(decal: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Sample a decal at normalised coordinates u, v in [0, 1] (outside: 0)."""
     s = decal.shape[0]
     inside = (u >= 0) & (u < 1) & (v >= 0) & (v < 1)
@@ -130,9 +130,9 @@ def _pattern(label: np.ndarray, p: np.ndarray, mesh: SkinnedMesh, pal: Palette, 
     top = np.where(stripe[:, None], pal.top_stripe, pal.top)
     top = np.where(pin[:, None], 0.5 * top, top)
     chest_z = sk.joints[sk.index("spine01"), 2]
-    decal = _decal(pal.mark)
-    front = _planar(decal, (x[m] + 0.075) / 0.15, (chest_z + 0.02 - z[m]) / 0.15) * (y[m] < -0.02)
-    back = _planar(_decal(pal.mark[::-1]), (-x[m] + 0.09) / 0.18, (chest_z - z[m]) / 0.18) * (y[m] > 0.04)
+    mark_front = decal(pal.mark)
+    front = planar(mark_front, (x[m] + 0.075) / 0.15, (chest_z + 0.02 - z[m]) / 0.15) * (y[m] < -0.02)
+    back = planar(decal(pal.mark[::-1]), (-x[m] + 0.09) / 0.18, (chest_z - z[m]) / 0.18) * (y[m] > 0.04)
     mark = np.maximum(front, back)[:, None]
     col[m] = (top * (1 - mark) + np.array([0.97, 0.97, 0.95]) * mark) * (weave[m] * noise[m])[:, None]
 

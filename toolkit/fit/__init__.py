@@ -1,0 +1,1 @@
+"""``trioman fit``: a person's video -> a subject folder, with the Anny body fitted to the whole sequence."""

@@ -1,0 +1,373 @@
+"""The Anny body fitted to a whole video's person observations: one shape, one camera, a pose and a root per frame.
+
+Objective (docs/fit.md, "The fit"), every term normalised by the person's height in pixels so weights do not
+depend on the resolution:
+
+- keypoints: confidence-weighted pseudo-Huber reprojection of the 27 landmarks with a place on the body
+  (``toolkit/fit/keypoints.py``);
+- silhouette: body points must project inside the person mask (one-sided: hair and clothes make the person
+  larger than the body, never smaller), the squared distance to the mask sampled on a distance map;
+- world landmarks: the 3D directions of the limbs (MediaPipe's metric landmarks, camera axes) against the
+  body's, ``1 - cos``;
+- temporal smoothness: the acceleration of the landmarks' 3D positions between neighbouring kept frames;
+- priors: the pose's squared angles, knees and elbows bending one way only, an upright root, the shape near
+  Anny's mean, the focal near its prior.
+
+Coarse to fine: stage 1 fits shape, focal, camera pitch and the poses of ``keyframes`` frames spread over the
+video; stage 2 freezes them and fits every frame's pose and root from the nearest keyframe's, all frames at
+once with the smoothness term. The camera stands at the world origin, level but for the fitted pitch, looking
+along +y; the world is z-up, the subject's first frame facing the camera (-y), as the subject format wants.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from trioman.runtime.rotations import axis_angle_to_matrix as np_aa_to_matrix
+from trioman.runtime.rotations import matrix_to_axis_angle as np_matrix_to_aa
+from trioman.runtime.skeleton import SkinnedMesh
+from trioman.toolkit.body.anny_model import PHENOTYPE_LABELS
+from trioman.toolkit.body.skinning import apply_transforms, blend_transforms, skinning_transforms
+from trioman.toolkit.fit.keypoints import LIMBS, Correspondence, correspondence
+from trioman.toolkit.rotations import axis_angle_to_matrix
+
+# the prior's weight per active joint (after the root): the spine and neck bend little, the limbs freely
+STIFF = {"spine04": 20.0, "spine02": 20.0, "neck01": 10.0, "head": 5.0, "wrist.L": 3.0, "wrist.R": 3.0, "foot.L": 3.0,
+         "foot.R": 3.0}
+ACTIVE_JOINTS = ("root", "spine04", "spine02", "neck01", "head", "upperarm01.L", "upperarm01.R", "lowerarm01.L",
+                 "lowerarm01.R", "wrist.L", "wrist.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R",
+                 "foot.L", "foot.R")
+PHONE_FOCAL = 0.722  # a phone's main camera (26 mm equivalent): focal in units of the image's long side
+WORLD_FROM_CAMERA0 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # camera axes of a level camera looking along +y
+BODY_HEIGHT = 1.7  # m, the prior person height for the first depth guess
+DIST_MAP_SIDE = 256  # the silhouette distance maps' long side (pixels)
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Settings of ``fit_sequence``; weights are relative to the keypoint term."""
+
+    focal: float | None = None  # pixels; None: the phone prior times the long side
+    refine_focal: bool = True
+    phenotype: tuple[float, ...] | None = None  # Anny's shape when known (PHENOTYPE_LABELS order): not fitted
+    keyframes: int = 24
+    key_iterations: int = 300
+    all_iterations: int = 250
+    lr: float = 0.03
+    w_silhouette: float = 0.5
+    w_world: float = 0.5
+    w_smooth: float = 20.0
+    w_pose: float = 0.002
+    w_limits: float = 1.0
+    w_upright: float = 0.2
+    w_shape: float = 0.05
+    w_height: float = 1.0  # the height phenotype: a monocular view cannot tell a tall person far away from a short one near
+    w_focal: float = 0.1
+    silhouette_points: int = 500
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.focal is not None and not (math.isfinite(self.focal) and self.focal > 0):
+            raise ValueError(f"focal: must be a positive number of pixels, got {self.focal!r}")
+        for name in ("keyframes", "key_iterations", "all_iterations", "silhouette_points"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class Observations:
+    """What the person model saw in the kept frames of a video (N frames of one size)."""
+
+    keypoints: np.ndarray  # [N, 33, 2] pixels
+    confidence: np.ndarray  # [N, 33] in [0, 1]
+    world: np.ndarray  # [N, 33, 3] metres, camera axes (zeros: unknown)
+    masks: np.ndarray  # [N, h, w] float32 person masks (any size of the frame's aspect)
+    frame_index: np.ndarray  # [N] the frames' numbers in the video (neighbours in time are smoothed together)
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        N = len(self.keypoints)
+        if N < 1:
+            raise ValueError("observations: no frame to fit")
+        for name, arr, shape in (("keypoints", self.keypoints, (N, 33, 2)), ("confidence", self.confidence, (N, 33)),
+                                 ("world", self.world, (N, 33, 3)), ("frame_index", self.frame_index, (N,))):
+            if np.shape(arr) != shape:
+                raise ValueError(f"{name}: expected shape {list(shape)}, got {list(np.shape(arr))}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name}: non-finite values")
+        if np.ndim(self.masks) != 3 or len(self.masks) != N:
+            raise ValueError(f"masks: expected [{N}, h, w], got {list(np.shape(self.masks))}")
+
+
+@dataclass(frozen=True, eq=False)
+class FitResult:
+    phenotype: dict[str, float]
+    poses: np.ndarray  # [N, J, 3] axis-angle, Anny's joints
+    trans: np.ndarray  # [N, 3]
+    viewmat: np.ndarray  # [4, 4] world -> camera, every frame
+    K: np.ndarray  # [3, 3]
+    reprojection_px: np.ndarray  # [N] confidence-weighted mean landmark error
+    losses: dict[str, float]  # the final terms of stage 2
+
+
+class _Body:
+    """Anny's rest geometry as a function of the phenotype, and the points the fit poses."""
+
+    def __init__(self, base: SkinnedMesh, corr: Correspondence, points: int, seed: int):
+        import anny
+
+        model = anny.Anny(skinning_method="lbs").to(torch.float32)
+        model.reference_bone_orientations = None
+        self.model = model
+        self.parents = [int(p) for p in base.skeleton.parents]
+        self.names = list(base.skeleton.joint_names)
+        self.corr = corr
+        rng = np.random.default_rng(seed)
+        self.sil = np.sort(rng.choice(base.num_vertices, size=min(points, base.num_vertices), replace=False))
+        vert_ids = np.concatenate([corr.vertex[corr.vertex >= 0], self.sil])
+        self.vert_ids = torch.as_tensor(vert_ids)
+        self.skin_idx = torch.as_tensor(base.skin_indices[vert_ids].astype(np.int64))
+        self.skin_w = torch.as_tensor(base.skin_weights[vert_ids])
+        self.n_mark_verts = int((corr.vertex >= 0).sum())
+        self.active = torch.as_tensor([self.names.index(n) for n in ACTIVE_JOINTS])
+
+    def rest(self, pheno: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """pheno [6] in (0, 1) -> rest joints [J, 3], rest points [P, 3] (vertex landmarks, then silhouette points)."""
+        out = self.model(None, phenotype_kwargs=pheno[None])
+        return out["rest_bone_heads"][0], out["rest_vertices"][0][self.vert_ids]
+
+    def pose(self, joints: torch.Tensor, points: torch.Tensor, active_pose: torch.Tensor, trans: torch.Tensor):
+        """-> (landmarks [B, M, 3] world, silhouette points [B, S, 3] world, full pose [B, J, 3])."""
+        B = len(active_pose)
+        full = torch.zeros(B, len(self.names), 3, dtype=active_pose.dtype)
+        full[:, self.active] = active_pose
+        A = skinning_transforms(self.parents, joints, full, trans)  # [B, J, 4, 4]
+        posed_joints = A[..., :3, 3] + (A[..., :3, :3] @ joints[..., None])[..., 0]
+        T = blend_transforms(A, self.skin_idx, self.skin_w)
+        posed_points = apply_transforms(T, points.expand(B, -1, -1))
+        corr = self.corr
+        marks = torch.empty(B, len(corr.landmarks), 3, dtype=active_pose.dtype)
+        is_joint = torch.as_tensor(corr.joint >= 0)
+        marks[:, is_joint] = posed_joints[:, torch.as_tensor(corr.joint[corr.joint >= 0])]
+        marks[:, ~is_joint] = posed_points[:, : self.n_mark_verts]
+        return marks, posed_points[:, self.n_mark_verts:], full
+
+
+def _camera(pitch: torch.Tensor) -> torch.Tensor:
+    """World -> camera rotation [3, 3] of a level camera looking along +y, tilted by ``pitch`` (rad, + looks down)."""
+    c, s = torch.cos(pitch), torch.sin(pitch)
+    one, zero = torch.ones_like(c), torch.zeros_like(c)
+    Rx = torch.stack([torch.stack([one, zero, zero]), torch.stack([zero, c, -s]), torch.stack([zero, s, c])])
+    return Rx @ torch.as_tensor(WORLD_FROM_CAMERA0.T, dtype=pitch.dtype)
+
+
+def _distance_maps(masks: np.ndarray) -> np.ndarray:
+    """Per frame, the distance from each pixel to the person mask (0 inside), in units of the map's long side,
+    at most DIST_MAP_SIDE pixels on that side. -> [N, h, w] float32"""
+    h, w = masks.shape[1:]
+    scale = min(1.0, DIST_MAP_SIDE / max(h, w))
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    out = []
+    for m in masks:
+        small = cv2.resize(m.astype(np.float32), size, interpolation=cv2.INTER_AREA) if scale < 1 else m
+        d = cv2.distanceTransform((small < 0.5).astype(np.uint8), cv2.DIST_L2, 5)
+        out.append(d / max(size))
+    return np.stack(out).astype(np.float32)
+
+
+def _yaw_guess(obs: Observations) -> np.ndarray:
+    """Each frame's body yaw from the world landmarks' left-right axis (shoulders and hips). -> [N] rad"""
+    w = obs.world
+    across = (w[:, 11] - w[:, 12]) + (w[:, 23] - w[:, 24])  # the person's left, camera axes
+    known = np.linalg.norm(across, axis=1) > 1e-6
+    return np.where(known, np.arctan2(across[:, 2], across[:, 0]), 0.0)
+
+
+def _height_px(obs: Observations) -> np.ndarray:
+    """Each frame's person height in pixels (its mask's rows, else the landmarks' span). -> [N]"""
+    out = []
+    sy = obs.height / obs.masks.shape[1]
+    for k, m in enumerate(obs.masks):
+        rows = np.flatnonzero(m.max(axis=1) >= 0.5)
+        if len(rows) > 1:
+            out.append((rows[-1] - rows[0] + 1) * sy)
+        else:
+            ys = obs.keypoints[k, obs.confidence[k] > 0.5, 1]
+            out.append(1.15 * np.ptp(ys) if len(ys) > 1 else 0.5 * obs.height)
+    return np.maximum(np.array(out), 8.0)
+
+
+class _Problem:
+    """The observations as tensors, the loss of a set of frames."""
+
+    def __init__(self, obs: Observations, body: _Body, cfg: FitConfig):
+        self.obs, self.body, self.cfg = obs, body, cfg
+        corr = body.corr
+        self.kp = torch.as_tensor(obs.keypoints[:, corr.landmarks], dtype=torch.float32)
+        self.conf = torch.as_tensor(obs.confidence[:, corr.landmarks] * corr.weight, dtype=torch.float32)
+        self.height_px = torch.as_tensor(_height_px(obs), dtype=torch.float32)
+        self.dist = torch.as_tensor(_distance_maps(obs.masks))[:, None]  # [N, 1, h, w]
+        self.world = torch.as_tensor(obs.world, dtype=torch.float32)
+        self.world_conf = torch.as_tensor(obs.confidence, dtype=torch.float32)
+        idx = {int(m): k for k, m in enumerate(corr.landmarks)}
+        self.limbs = [(idx[a], idx[b], a, b) for a, b in LIMBS if a in idx and b in idx]
+        self.shoulders, self.hips = [idx[11], idx[12]], [idx[23], idx[24]]
+        self.knee = [body.names.index(n) for n in ("lowerleg01.L", "lowerleg01.R")]
+        self.elbow = [body.names.index(n) for n in ("lowerarm01.L", "lowerarm01.R")]
+        self.cx, self.cy = obs.width / 2, obs.height / 2
+        self.stiff = torch.as_tensor([STIFF.get(n, 1.0) for n in ACTIVE_JOINTS[1:]])
+
+    def project(self, X: torch.Tensor, R: torch.Tensor, f: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        cam = X @ R.T
+        z = cam[..., 2].clamp(min=1e-3)
+        return torch.stack([f * cam[..., 0] / z + self.cx, f * cam[..., 1] / z + self.cy], -1), cam
+
+    def loss(self, frames: torch.Tensor, joints, points, active_pose, trans, R, f, smooth: bool) -> dict[str, torch.Tensor]:
+        cfg, body = self.cfg, self.body
+        marks, sil, full = body.pose(joints, points, active_pose, trans)
+        uv, cam = self.project(marks, R, f)
+        scale = self.height_px[frames][:, None]
+        r = ((uv - self.kp[frames]).norm(dim=-1) / scale)
+        c = 0.02
+        conf = self.conf[frames]
+        terms = {"keypoints": ((torch.sqrt(r * r + c * c) - c) * conf).sum() / conf.sum().clamp(min=1e-6)}
+        suv, _ = self.project(sil, R, f)
+        grid = torch.stack([suv[..., 0] / self.obs.width * 2 - 1, suv[..., 1] / self.obs.height * 2 - 1], -1)
+        d = F.grid_sample(self.dist[frames], grid[:, None], align_corners=False, padding_mode="border")[:, 0, 0]
+        long_side = max(self.obs.width, self.obs.height)
+        terms["silhouette"] = cfg.w_silhouette * ((d * long_side / scale) ** 2).mean()
+        if cfg.w_world > 0:
+            wl = []
+            for i, j, a, b in self.limbs:
+                mp = self.world[frames, b] - self.world[frames, a]
+                model = cam[:, j] - cam[:, i]
+                ok = (self.world_conf[frames, a] * self.world_conf[frames, b]) * (mp.norm(dim=-1) > 1e-6)
+                cos = F.cosine_similarity(model, mp, dim=-1, eps=1e-6)
+                wl.append(((1 - cos) * ok).sum() / ok.sum().clamp(min=1e-6))
+            terms["world"] = cfg.w_world * torch.stack(wl).mean()
+        if smooth and len(frames) > 2:
+            gap = torch.as_tensor(np.diff(self.obs.frame_index[frames.numpy()]))
+            steady = (gap[1:] == gap[:-1]).float()  # equal spacing on both sides: a true neighbour triple
+            acc = marks[2:] - 2 * marks[1:-1] + marks[:-2]
+            terms["smooth"] = cfg.w_smooth * ((acc ** 2).sum(-1).mean(-1) * steady).sum() / steady.sum().clamp(min=1)
+        body_pose = active_pose[:, 1:]
+        terms["pose"] = cfg.w_pose * ((body_pose ** 2).sum(-1) * self.stiff).mean()
+        terms["limits"] = cfg.w_limits * (F.relu(-full[:, self.knee, 0] - 0.05) ** 2 + F.relu(full[:, self.elbow, 0] - 0.05) ** 2).mean()
+        # upright: the root, and the torso (hips' centre to shoulders' centre) on average over the frames; the
+        # camera's pitch could otherwise trade against a body leaning on every frame
+        up = axis_angle_to_matrix(active_pose[:, 0])[:, 2, 2]
+        torso = (marks[:, self.shoulders].mean(1) - marks[:, self.hips].mean(1)).mean(0)
+        terms["upright"] = cfg.w_upright * ((1 - up).mean() + (1 - torso[2] / torso.norm().clamp(min=1e-6)))
+        return terms
+
+
+def _init_trans(obs: Observations, f: float, joints0: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Each frame's root translation from the hips' pixel and the person's pixel height. -> [N, 3]"""
+    depth = f * BODY_HEIGHT / _height_px(obs)
+    hips = 0.5 * (obs.keypoints[:, 23] + obs.keypoints[:, 24])
+    cam = np.stack([(hips[:, 0] - obs.width / 2) * depth / f, (hips[:, 1] - obs.height / 2) * depth / f, depth], 1)
+    world = cam @ R  # camera -> world (R is world -> camera)
+    return world - joints0
+
+
+def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfig(),
+                 progress=None) -> FitResult:
+    """Fit Anny to ``obs``; ``base`` is Anny's default body (its topology, weights and skeleton); ``progress``:
+    a callable (stage, iteration, total) or None."""
+    torch.manual_seed(cfg.seed)
+    corr = correspondence(base)
+    body = _Body(base, corr, cfg.silhouette_points, cfg.seed)
+    prob = _Problem(obs, body, cfg)
+    N = len(obs.keypoints)
+    f0 = cfg.focal if cfg.focal is not None else PHONE_FOCAL * max(obs.width, obs.height)
+    log_f = torch.tensor(math.log(f0), requires_grad=cfg.refine_focal)
+    pitch = torch.zeros((), requires_grad=True)
+    known = cfg.phenotype is not None
+    start = torch.as_tensor(cfg.phenotype, dtype=torch.float32).clamp(1e-4, 1 - 1e-4) if known else torch.full((6,), 0.5)
+    pheno_logit = torch.logit(start).requires_grad_(not known)
+    yaw = _yaw_guess(obs)
+    R0 = WORLD_FROM_CAMERA0.T
+    trans0 = _init_trans(obs, f0, base.skeleton.joints[0], R0)
+
+    # stage 1: keyframes, shape, focal, pitch
+    keys = np.unique(np.linspace(0, N - 1, min(cfg.keyframes, N)).round().astype(int))
+    k_pose = torch.zeros(len(keys), len(ACTIVE_JOINTS), 3)
+    k_pose[:, 0, 2] = torch.as_tensor(yaw[keys], dtype=torch.float32)
+    k_pose.requires_grad_(True)
+    k_trans = torch.as_tensor(trans0[keys], dtype=torch.float32).clone().requires_grad_(True)
+    params = [k_pose, k_trans, pitch] + ([] if known else [pheno_logit]) + ([log_f] if cfg.refine_focal else [])
+    frames = torch.as_tensor(keys)
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        joints, points = body.rest(torch.sigmoid(pheno_logit))
+        terms = prob.loss(frames, joints, points, k_pose, k_trans, _camera(pitch), log_f.exp(), smooth=False)
+        dev = (torch.sigmoid(pheno_logit) - 0.5).pow(2)
+        terms["shape"] = cfg.w_shape * dev.sum() + cfg.w_height * dev[PHENOTYPE_LABELS.index("height")]
+        terms["focal"] = cfg.w_focal * (log_f - math.log(f0)) ** 2
+        total = sum(terms.values())
+        total.backward()
+        return total
+
+    # L-BFGS with a line search (SMPLify's choice): the keyframes' problem is small and badly conditioned. First
+    # the root, translation and camera alone (the body at rest), so that no joint takes the body's orientation.
+    rounds = max(2, cfg.key_iterations // 20)
+    frozen = torch.ones(len(ACTIVE_JOINTS), 1)
+    frozen[1:] = 0.0
+    k_pose.register_hook(lambda g: g * frozen if frozen[1:].sum() == 0 else g)
+    for it in range(rounds):
+        if it == 0 or it == rounds // 3:
+            frozen[1:] = 0.0 if it == 0 else 1.0
+            opt = torch.optim.LBFGS(params, lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
+        opt.step(closure)
+        if progress is not None:
+            progress("keyframes", it + 1, rounds)
+
+    # stage 2: every frame from its nearest keyframe; shape, focal and pitch frozen
+    with torch.no_grad():
+        pheno = torch.sigmoid(pheno_logit).clone()
+        joints, points = body.rest(pheno)
+        R, f = _camera(pitch).clone(), log_f.exp().clone()
+    nearest = np.abs(np.arange(N)[:, None] - keys[None]).argmin(1)
+    k_np = k_pose.detach().numpy().astype(np.float64)
+    turn = np_aa_to_matrix(np.stack([np.zeros(N), np.zeros(N), yaw - yaw[keys][nearest]], 1))
+    root = np_matrix_to_aa(turn @ np_aa_to_matrix(k_np[nearest, 0]))
+    a_pose = torch.as_tensor(np.concatenate([root[:, None], k_np[nearest, 1:]], 1), dtype=torch.float32).requires_grad_(True)
+    t_init = _init_trans(obs, float(f), joints[0].numpy().astype(np.float64), R.numpy().astype(np.float64))
+    t_init += k_trans.detach().numpy()[nearest] - t_init[keys][nearest]  # the keyframe's fit, moved as the hips moved
+    a_trans = torch.as_tensor(t_init, dtype=torch.float32).requires_grad_(True)
+    opt = torch.optim.Adam([a_pose, a_trans], lr=cfg.lr / 4)  # from the keyframes' fit: small steps
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.all_iterations, eta_min=cfg.lr * 0.005)
+    every = torch.arange(N)
+    for it in range(cfg.all_iterations):
+        opt.zero_grad()
+        terms = prob.loss(every, joints, points, a_pose, a_trans, R, f, smooth=True)
+        sum(terms.values()).backward()
+        opt.step()
+        sched.step()
+        if progress is not None:
+            progress("all frames", it + 1, cfg.all_iterations)
+
+    with torch.no_grad():
+        marks, _, full = body.pose(joints, points, a_pose, a_trans)
+        uv, _ = prob.project(marks, R, f)
+        err = (uv - prob.kp).norm(dim=-1)
+        conf = prob.conf
+        reproj = (err * conf).sum(1) / conf.sum(1).clamp(min=1e-6)
+    viewmat = np.eye(4)
+    viewmat[:3, :3] = R.numpy()
+    fx = float(f)
+    K = np.array([[fx, 0.0, obs.width / 2], [0.0, fx, obs.height / 2], [0.0, 0.0, 1.0]])
+    return FitResult(
+        phenotype={k: round(float(v), 4) for k, v in zip(PHENOTYPE_LABELS, pheno.numpy())},
+        poses=full.numpy().astype(np.float64), trans=a_trans.detach().numpy().astype(np.float64), viewmat=viewmat, K=K,
+        reprojection_px=reproj.numpy().astype(np.float64), losses={k: float(v.detach()) for k, v in terms.items()},
+    )

@@ -1,0 +1,70 @@
+"""Where MediaPipe's 33 pose landmarks lie on the Anny body: a joint (the anatomical centres) or a surface
+vertex (nose, ears, heels, toe tips), chosen once on the rest mesh by geometry (Anny's topology is fixed, so the
+vertex indices hold for every phenotype).
+
+Landmark order and names: ``trioman.runtime.person.landmarks.KEYPOINT_NAMES`` (MediaPipe's; "left" is the
+person's left, Anny's ".L", at +x of a body facing -y).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trioman.runtime.skeleton import SkinnedMesh
+
+# landmark index -> Anny joint name
+JOINT_LANDMARKS = {
+    2: "eye.L", 5: "eye.R",
+    11: "upperarm01.L", 12: "upperarm01.R", 13: "lowerarm01.L", 14: "lowerarm01.R", 15: "wrist.L", 16: "wrist.R",
+    17: "finger5-1.L", 18: "finger5-1.R", 19: "finger2-1.L", 20: "finger2-1.R", 21: "finger1-2.L", 22: "finger1-2.R",
+    23: "upperleg01.L", 24: "upperleg01.R", 25: "lowerleg01.L", 26: "lowerleg01.R", 27: "foot.L", 28: "foot.R",
+}
+VERTEX_LANDMARKS = (0, 7, 8, 29, 30, 31, 32)  # nose, ears, heels, toe tips
+# how much each landmark counts in the reprojection term (hands and face points are less reliable than limbs)
+LANDMARK_WEIGHT = {**{i: 1.0 for i in range(33)}, **{i: 0.3 for i in (0, 2, 5, 7, 8, 17, 18, 19, 20, 21, 22)}}
+# limbs whose 3D direction the world landmarks give: (from, to) landmark indices
+LIMBS = ((11, 13), (13, 15), (12, 14), (14, 16), (23, 25), (25, 27), (24, 26), (26, 28), (11, 12), (23, 24), (11, 23), (12, 24))
+
+
+@dataclass(frozen=True)
+class Correspondence:
+    """Landmarks on a body: ``landmarks`` [M] MediaPipe indices, each a joint (``joint`` >= 0) or a vertex."""
+
+    landmarks: np.ndarray  # [M] int
+    joint: np.ndarray  # [M] int, -1 where the landmark is a vertex
+    vertex: np.ndarray  # [M] int, -1 where it is a joint
+    weight: np.ndarray  # [M] float
+
+
+def _dominant(mesh: SkinnedMesh) -> np.ndarray:
+    return np.asarray(mesh.skeleton.joint_names)[np.argmax(mesh.dense_weights(), axis=1)].astype(str)
+
+
+def correspondence(mesh: SkinnedMesh) -> Correspondence:
+    """The 27 landmarks MediaPipe gives that have a place on ``mesh`` (Anny's topology; mouth corners are left out)."""
+    sk = mesh.skeleton
+    v = mesh.vertices
+    dom = _dominant(mesh)
+    head = dom == "head"
+    eye_z = 0.5 * (sk.joints[sk.index("eye.L"), 2] + sk.joints[sk.index("eye.R"), 2])
+    picks: dict[int, int] = {}
+    face = head & (np.abs(v[:, 0]) < 0.012) & (v[:, 2] < eye_z) & (v[:, 2] > eye_z - 0.06)
+    picks[0] = int(np.flatnonzero(face)[np.argmin(v[face, 1])])  # nose tip: the front-most point below the eyes
+    level = head & (np.abs(v[:, 2] - eye_z) < 0.03)
+    picks[7] = int(np.flatnonzero(level)[np.argmax(v[level, 0])])  # left ear: the widest point at eye height
+    picks[8] = int(np.flatnonzero(level)[np.argmin(v[level, 0])])
+    for side, heel, toe in ((".L", 29, 31), (".R", 30, 32)):
+        ankle_z = sk.joints[sk.index("foot" + side), 2]
+        foot = np.char.startswith(dom, ("foot" + side)) | (np.char.startswith(dom, "toe") & np.char.endswith(dom, side))
+        low = foot & (v[:, 2] < ankle_z)
+        picks[heel] = int(np.flatnonzero(low)[np.argmax(v[low, 1])])  # the back-most point below the ankle
+        picks[toe] = int(np.flatnonzero(foot)[np.argmin(v[foot, 1])])  # the front-most point of the foot
+    marks = sorted(set(JOINT_LANDMARKS) | set(VERTEX_LANDMARKS))
+    return Correspondence(
+        landmarks=np.array(marks),
+        joint=np.array([sk.index(JOINT_LANDMARKS[m]) if m in JOINT_LANDMARKS else -1 for m in marks]),
+        vertex=np.array([picks.get(m, -1) for m in marks]),
+        weight=np.array([LANDMARK_WEIGHT[m] for m in marks]),
+    )
