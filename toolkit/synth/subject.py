@@ -204,9 +204,11 @@ def _capture(sk, frames: int, cfg: SynthConfig) -> motions.Motion:
 
 
 def framing_intrinsics(mesh: SkinnedMesh, cfg: SynthConfig) -> np.ndarray:
-    """Square-pixel K whose focal makes the rest body span ``cfg.fill`` of the image height from the training camera."""
+    """Square-pixel K whose focal makes the rest body span ``cfg.fill`` of the image height from the training camera
+    (of its width when that is the tighter side: a portrait frame and the rest pose's outstretched arms)."""
     height = float(np.ptp(mesh.vertices[:, 2]))
-    f = cfg.fill * cfg.height * TRAIN_VIEW[2] / height
+    width = float(np.ptp(mesh.vertices[:, 0]))
+    f = cfg.fill * min(cfg.height / height, cfg.width / width) * TRAIN_VIEW[2]
     return intrinsics(f, f, cfg.width / 2, cfg.height / 2)
 
 
