@@ -35,6 +35,7 @@ COMMANDS = (
     Command("train", "trioman.commands.train", "train a Gaussian avatar on a subject", "train"),
     Command("eval", "trioman.commands.eval", "evaluate a trained avatar: metrics, grid, video", "train"),
     Command("export", "trioman.commands.export", "export a trained avatar (portable folder) or the Refiner/Examiner (ONNX fp32/int8/fp16)", "train"),
+    Command("fit", "trioman.commands.fit", "a person's video (or frames) -> a subject: the Anny body fitted on a CPU", "fit"),
     Command("import", "trioman.commands.import_", "import a real capture (ExAvatar layouts, SMPL-X fits) as a subject", "smplx"),
     Command("synth-corpus", "trioman.commands.synth_corpus", "synthetic subjects + baselines + triplets for the Refiner/Examiner", "train"),
     Command("triplets", "trioman.commands.triplets", "GT / coarse / normal-map triplets of a trained run", "train"),
@@ -49,7 +50,8 @@ COMMANDS = (
 )
 
 # The packages each extra brings, by import name: checked before a command of that extra runs.
-EXTRA_IMPORTS = {"train": ("torch", "anny"), "smplx": ("torch", "smplx"), "viewer": ("viser",)}
+EXTRA_IMPORTS = {"train": ("torch", "anny"), "smplx": ("torch", "smplx"), "viewer": ("viser",),
+                 "fit": ("torch", "anny", "ai_edge_litert")}
 
 
 class MissingExtraError(RuntimeError):

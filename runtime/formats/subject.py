@@ -54,8 +54,9 @@ ORTHONORMAL_TOL = 1e-3  # max |R R^T - I|
 LAST_ROW_TOL = 1e-6
 
 CONTACT_SHEET_PNG = "contact_sheet.png"  # written beside a subject by trioman synth
+FIT_REPORT_FILES = ("fit.json", "fit.md", "fit_overlay.png", "fit_overlay.mp4")  # written beside a subject by trioman fit
 # What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
-SUBJECT_FOLDER = FolderKind("subject", SUBJECT_JSON, files=(SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, CONTACT_SHEET_PNG),
+SUBJECT_FOLDER = FolderKind("subject", SUBJECT_JSON, files=(SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, CONTACT_SHEET_PNG, *FIT_REPORT_FILES),
                             folders=((IMAGES_DIR, ("*.png",)), (MASKS_DIR, ("*.png",))))
 
 _FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}")  # fullmatch: "$" would pass a final newline

@@ -44,9 +44,12 @@ ACTIVE_JOINTS = ("root", "spine04", "spine02", "neck01", "head", "upperarm01.L",
                  "lowerarm01.R", "wrist.L", "wrist.R", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R",
                  "foot.L", "foot.R")
 PHONE_FOCAL = 0.722  # a phone's main camera (26 mm equivalent): focal in units of the image's long side
-WORLD_FROM_CAMERA0 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # camera axes of a level camera looking along +y
+# world -> camera of a level camera looking along +y: x_cam = x, y_cam = -z (image down), z_cam = y (depth)
+LEVEL_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 BODY_HEIGHT = 1.7  # m, the prior person height for the first depth guess
 DIST_MAP_SIDE = 256  # the silhouette distance maps' long side (pixels)
+MAX_PITCH = math.radians(35.0)
+REPAIR_FACTOR, REPAIR_FLOOR = 3.0, 0.02  # a keyframe whose landmark error (person heights) exceeds both is restarted
 
 
 @dataclass(frozen=True)
@@ -70,6 +73,7 @@ class FitConfig:
     w_height: float = 1.0  # the height phenotype: a monocular view cannot tell a tall person far away from a short one near
     w_focal: float = 0.1
     silhouette_points: int = 500
+    repairs: int = 2  # passes that restart badly fitted keyframes from a neighbour
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -161,12 +165,14 @@ class _Body:
         return marks, posed_points[:, self.n_mark_verts:], full
 
 
-def _camera(pitch: torch.Tensor) -> torch.Tensor:
-    """World -> camera rotation [3, 3] of a level camera looking along +y, tilted by ``pitch`` (rad, + looks down)."""
+def _camera(raw_pitch: torch.Tensor) -> torch.Tensor:
+    """World -> camera rotation [3, 3] of a level camera looking along +y, tilted by the pitch
+    ``MAX_PITCH tanh(raw_pitch)`` (rad): a person filming a person holds the phone within it of level."""
+    pitch = MAX_PITCH * torch.tanh(raw_pitch)
     c, s = torch.cos(pitch), torch.sin(pitch)
     one, zero = torch.ones_like(c), torch.zeros_like(c)
     Rx = torch.stack([torch.stack([one, zero, zero]), torch.stack([zero, c, -s]), torch.stack([zero, s, c])])
-    return Rx @ torch.as_tensor(WORLD_FROM_CAMERA0.T, dtype=pitch.dtype)
+    return Rx @ torch.as_tensor(LEVEL_CAMERA, dtype=pitch.dtype)
 
 
 def _distance_maps(masks: np.ndarray) -> np.ndarray:
@@ -229,6 +235,14 @@ class _Problem:
         cam = X @ R.T
         z = cam[..., 2].clamp(min=1e-3)
         return torch.stack([f * cam[..., 0] / z + self.cx, f * cam[..., 1] / z + self.cy], -1), cam
+
+    def frame_error(self, frames: torch.Tensor, joints, points, active_pose, trans, R, f) -> torch.Tensor:
+        """Each frame's confidence-weighted landmark error in person heights. -> [B]"""
+        marks, _, _ = self.body.pose(joints, points, active_pose, trans)
+        uv, _ = self.project(marks, R, f)
+        r = (uv - self.kp[frames]).norm(dim=-1) / self.height_px[frames][:, None]
+        conf = self.conf[frames]
+        return (r * conf).sum(1) / conf.sum(1).clamp(min=1e-6)
 
     def loss(self, frames: torch.Tensor, joints, points, active_pose, trans, R, f, smooth: bool) -> dict[str, torch.Tensor]:
         cfg, body = self.cfg, self.body
@@ -294,7 +308,7 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfi
     start = torch.as_tensor(cfg.phenotype, dtype=torch.float32).clamp(1e-4, 1 - 1e-4) if known else torch.full((6,), 0.5)
     pheno_logit = torch.logit(start).requires_grad_(not known)
     yaw = _yaw_guess(obs)
-    R0 = WORLD_FROM_CAMERA0.T
+    R0 = LEVEL_CAMERA
     trans0 = _init_trans(obs, f0, base.skeleton.joints[0], R0)
 
     # stage 1: keyframes, shape, focal, pitch
@@ -307,7 +321,8 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfi
     frames = torch.as_tensor(keys)
 
     def closure() -> torch.Tensor:
-        opt.zero_grad()
+        for p in params:
+            p.grad = None
         joints, points = body.rest(torch.sigmoid(pheno_logit))
         terms = prob.loss(frames, joints, points, k_pose, k_trans, _camera(pitch), log_f.exp(), smooth=False)
         dev = (torch.sigmoid(pheno_logit) - 0.5).pow(2)
@@ -320,16 +335,39 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfi
     # L-BFGS with a line search (SMPLify's choice): the keyframes' problem is small and badly conditioned. First
     # the root, translation and camera alone (the body at rest), so that no joint takes the body's orientation.
     rounds = max(2, cfg.key_iterations // 20)
-    frozen = torch.ones(len(ACTIVE_JOINTS), 1)
-    frozen[1:] = 0.0
-    k_pose.register_hook(lambda g: g * frozen if frozen[1:].sum() == 0 else g)
-    for it in range(rounds):
-        if it == 0 or it == rounds // 3:
-            frozen[1:] = 0.0 if it == 0 else 1.0
-            opt = torch.optim.LBFGS(params, lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
-        opt.step(closure)
-        if progress is not None:
-            progress("keyframes", it + 1, rounds)
+    body_free = torch.zeros(len(ACTIVE_JOINTS), 1)
+    body_free[0] = 1.0
+    k_pose.register_hook(lambda g: g * body_free)
+
+    def run(rounds: int, tag: str) -> None:
+        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
+        for it in range(rounds):
+            opt.step(closure)
+            if progress is not None:
+                progress(tag, it + 1, rounds)
+
+    run(max(1, rounds // 3), "keyframes: root")
+    body_free[1:] = 1.0
+    run(rounds - rounds // 3, "keyframes")
+    # A shared line search can leave a keyframe in a poor minimum: such keyframes restart from their best
+    # neighbour's pose (turned by the difference of the yaw guesses) and the keyframes are fitted again.
+    for _ in range(cfg.repairs):
+        with torch.no_grad():
+            joints, points = body.rest(torch.sigmoid(pheno_logit))
+            err = prob.frame_error(frames, joints, points, k_pose, k_trans, _camera(pitch), log_f.exp()).numpy()
+        bad = err > max(REPAIR_FACTOR * float(np.median(err)), REPAIR_FLOOR)
+        if not bad.any() or bad.all():
+            break
+        good = np.flatnonzero(~bad)
+        with torch.no_grad():
+            for k in np.flatnonzero(bad):
+                g = good[np.argmin(np.abs(good - k))]
+                turn = np_aa_to_matrix(np.array([0.0, 0.0, yaw[keys[k]] - yaw[keys[g]]]))
+                pose = k_pose[g].numpy().astype(np.float64).copy()
+                pose[0] = np_matrix_to_aa(turn @ np_aa_to_matrix(pose[0]))
+                k_pose[k] = torch.as_tensor(pose, dtype=torch.float32)
+                k_trans[k] = k_trans[g] + torch.as_tensor(trans0[keys[k]] - trans0[keys[g]], dtype=torch.float32)
+        run(max(1, rounds // 2), "keyframes: repair")
 
     # stage 2: every frame from its nearest keyframe; shape, focal and pitch frozen
     with torch.no_grad():

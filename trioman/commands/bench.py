@@ -20,6 +20,7 @@ TARGETS = {
     "frames": ("trioman.bench.frames", "bench_frames", "frames_markdown", "FramesBenchConfig"),
     "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown", "StabilityBenchConfig"),
     "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown", "ScaleBenchConfig"),
+    "fit": ("trioman.bench.fit", "bench_fit", "fit_markdown", "FitBenchConfig"),
 }
 # The configs' fields the library's errors name: each the option of its name (``training``: --no-training) -> the flags
 # as typed (trioman/commands/flags.py).
@@ -28,17 +29,19 @@ FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
     "detail_sigma", "coverage", "pose_noise", "reach", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
-    "variants", "ablation_subjects", "jobs", "style", "aspect")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
+    "variants", "ablation_subjects", "jobs", "style", "aspect", "focal")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", choices=tuple(TARGETS), help="what to benchmark")
     parser.add_argument("--out", default="out/bench", help="report folder (default out/bench)")
-    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64)")
-    parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64; fit: the long side, 540)")
+    parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500, fit 375: a video of 300)")
+    parser.add_argument("--seed", type=int, default=None, help="the subject's seed (default: fit 1004, the others 0)")
     parser.add_argument("--style", choices=("plain", "realistic"), default=None,
                         help="synth: the subject's style; ablation: the style of a corpus built here (default plain)")
+    parser.add_argument("--focal", choices=("prior", "truth"), default=None,
+                        help="fit: the fit refines a phone's focal (prior, default) or is given the subject's (truth)")
     parser.add_argument("--aspect", type=float, default=None, metavar="W/H",
                         help="synth: image width / height, e.g. 0.5625 for a portrait phone video (default 1)")
     parser.add_argument("--presets", default="quick,full", help="train: presets to run, comma-separated")
@@ -48,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--avatar-run", default=None, metavar="RUN",
                         help="render: a trained run folder (default: the untrained default avatar)")
     parser.add_argument("--corpus", default="out/corpus", help="models: corpus folder, built when absent (default out/corpus)")
-    parser.add_argument("--subjects", type=int, default=10, help="models: training subjects when building the corpus")
+    parser.add_argument("--subjects", type=int, default=None,
+                        help="models/ablation: training subjects when building the corpus (default 10); fit: subjects (default 3)")
     parser.add_argument("--heldout", type=int, default=None,
                         help="models/ablation: held-out subjects when building the corpus (default models 2, ablation 3)")
     parser.add_argument("--refiner-steps", type=int, default=1000, help="models: Refiner training steps per condition")

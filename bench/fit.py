@@ -1,0 +1,106 @@
+"""``trioman bench fit``: ``trioman fit`` on held-out synthetic subjects rendered as the video a user would have
+(``trioman synth --style realistic --video``), against their truth: pose error (MPJPE after root alignment and
+PA-MPJPE after Procrustes, per joint group), the person masks against the true ones, frames dropped, time per
+frame and peak memory."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from trioman.bench.common import check_choice, check_int, check_path, machine, peak_rss_mib
+
+TARGETS = {"pa_mpjpe_mm": 40.0, "seconds_per_300_frames": 300.0, "peak_rss_mib": 3072.0}
+
+
+@dataclass(frozen=True)
+class FitBenchConfig:
+    out: str | Path = "out/bench"  # the report folder; subjects, videos and fits go in out/fit_work
+    seed: int = 1004  # the first subject's seed (the ablation's held-out subjects are 1004-1006)
+    subjects: int = 3
+    size: int = 540  # the frames' long side
+    frames: int = 375  # subject frames; the video holds the training 80 % (300)
+    coverage: float = 1.0  # share of a full turn the video's turn spans
+    style: str = "realistic"
+    focal: str = "prior"  # "prior": the fit refines a phone's focal; "truth": it is given the subject's
+    iterations: int | None = None  # the fit's iterations over every frame and on the keyframes (default: the command's)
+
+    def __post_init__(self) -> None:
+        check_path(self, "out")
+        check_int(self, "seed", 0)
+        for name in ("subjects", "size", "frames"):
+            check_int(self, name)
+        check_int(self, "iterations", optional=True)
+        check_choice(self, "style", ("plain", "realistic"))
+        check_choice(self, "focal", ("prior", "truth"))
+
+
+def bench_fit(config: FitBenchConfig) -> dict:
+    import dataclasses
+    import time
+
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.fit.evaluate import compare
+    from trioman.toolkit.fit.fitter import FitConfig
+    from trioman.toolkit.fit.run import FitRunConfig, fit_video
+    from trioman.toolkit.stages import peak_rss_bytes
+    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
+
+    work = Path(config.out) / "fit_work"
+    work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for k in range(config.subjects):
+        seed = config.seed + k
+        truth_dir, video, fit_dir = work / f"s{seed}", work / f"s{seed}.mp4", work / f"s{seed}_fit"
+        if not (truth_dir / "subject.json").is_file() or not video.is_file():
+            synthesize_subject(SynthConfig(seed=seed, size=config.size, frames=config.frames, aspect=9 / 16,
+                                           coverage=config.coverage, style=config.style), truth_dir, overwrite=True,
+                               progress=False, video=video)
+        truth = load_subject(truth_dir)
+        fit_cfg = FitConfig() if config.iterations is None else FitConfig(all_iterations=config.iterations,
+                                                                          key_iterations=max(40, config.iterations))
+        cfg = FitRunConfig(focal=float(truth.K[0, 0, 0]) if config.focal == "truth" else None, fit=fit_cfg)
+        t = time.perf_counter()
+        fitted = fit_video(video, fit_dir, cfg, overwrite=True, progress=False, say=lambda line: None)
+        seconds = time.perf_counter() - t
+        import json
+
+        report = json.loads((fit_dir / "fit.json").read_text())
+        scores = compare(fitted, truth)
+        read = report["summary"]["frames_read"]
+        rows.append({"subject": truth_dir.name, "frames_read": read, "frames_kept": report["summary"]["frames_kept"],
+                     "dropped": report["summary"]["dropped"], **{k: v for k, v in scores.items() if k != "per_frame_pa_mpjpe_mm"},
+                     "reprojection_px": report["summary"]["reprojection_px_mean"],
+                     "body_mask_iou": report["summary"]["mask_iou_mean"], "focal_px": report["camera"]["focal_px"],
+                     "true_focal_px": round(float(truth.K[0, 0, 0]), 1), "seconds": round(seconds, 1),
+                     "seconds_per_300_frames": round(300 * seconds / max(read, 1), 1)})
+    return {"target": "fit", "machine": machine(), "config": {k: str(v) if isinstance(v, Path) else v
+                                                             for k, v in dataclasses.asdict(config).items()},
+            "rows": rows, "peak_rss_mib": round(max(peak_rss_bytes() / 2 ** 20, peak_rss_mib()), 1), "targets": TARGETS}
+
+
+def fit_markdown(r: dict) -> str:
+    c = r["config"]
+    lines = [
+        f"# trioman bench fit ({c['style']} subjects, long side {c['size']} px, 9:16, focal: {c['focal']})", "",
+        f"Machine: {r['machine']}. Command: `trioman bench fit --seed {c['seed']} --subjects {c['subjects']} "
+        f"--size {c['size']} --frames {c['frames']} --focal {c['focal']}`. Each subject is rendered with "
+        "`trioman synth --style realistic --aspect 9:16 --video`, fitted from the video alone by `trioman fit`, and "
+        "compared with the truth on the frames the fit kept (joints in each camera's frame, mm).", "",
+        "| subject | kept / read | MPJPE | PA-MPJPE | PA arms | PA legs | PA head | mask IoU (person) | body vs person mask | "
+        "reprojection px | focal px (true) | s per 300 frames |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in r["rows"]:
+        lines.append(f"| {row['subject']} | {row['frames_kept']} / {row['frames_read']} | {row['mpjpe']} | {row['pa_mpjpe']} | "
+                     f"{row['pa_arms']} | {row['pa_legs']} | {row['pa_head']} | {row['mask_iou']} | {row['body_mask_iou']} | "
+                     f"{row['reprojection_px']} | {row['focal_px']} ({row['true_focal_px']}) | {row['seconds_per_300_frames']} |")
+    t = r["targets"]
+    worst_pa = max(row["pa_mpjpe"] for row in r["rows"])
+    worst_s = max(row["seconds_per_300_frames"] for row in r["rows"])
+    lines += ["", f"Targets: PA-MPJPE <= {t['pa_mpjpe_mm']} mm: {'met' if worst_pa <= t['pa_mpjpe_mm'] else 'MISSED'} "
+              f"(worst {worst_pa}); 300 frames <= {t['seconds_per_300_frames']:.0f} s: "
+              f"{'met' if worst_s <= t['seconds_per_300_frames'] else 'MISSED'} (worst {worst_s}); peak RSS "
+              f"{r['peak_rss_mib']} MiB (<= {t['peak_rss_mib']:.0f}: {'met' if r['peak_rss_mib'] <= t['peak_rss_mib'] else 'MISSED'}).",
+              "", "Dropped frames per subject: " + "; ".join(f"{row['subject']}: {row['dropped'] or 'none'}" for row in r["rows"]), ""]
+    return "\n".join(lines)

@@ -1,0 +1,31 @@
+"""``trioman bench fit`` end to end at a tiny size."""
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("anny")
+pytest.importorskip("ai_edge_litert")
+
+from trioman.bench.fit import FitBenchConfig, bench_fit, fit_markdown  # noqa: E402
+from trioman.runtime.person import MissingModelsError, load_models  # noqa: E402
+
+try:
+    load_models()
+except MissingModelsError as exc:
+    pytest.skip(f"person models not installed: {exc}", allow_module_level=True)
+
+
+def test_bench_fit_compares_a_fit_with_its_truth(tmp_path):
+    r = bench_fit(FitBenchConfig(out=tmp_path, subjects=1, size=256, frames=14, iterations=20, focal="truth"))
+    (row,) = r["rows"]
+    assert row["frames_read"] == 10 and 2 <= row["frames_kept"] <= 10
+    assert 0 < row["pa_mpjpe"] < 300 and 0 < row["mask_iou"] <= 1 and row["seconds"] > 0
+    md = fit_markdown(r)
+    assert "| s1004 |" in md and "PA-MPJPE <= 40.0 mm" in md
+
+
+@pytest.mark.parametrize("kwargs, field", [(dict(focal="guess"), "focal"), (dict(subjects=0), "subjects"),
+                                            (dict(style="cartoon"), "style")])
+def test_bad_bench_settings_are_named(kwargs, field):
+    with pytest.raises(ValueError, match=f"^{field}: "):
+        FitBenchConfig(**kwargs)

@@ -1,0 +1,93 @@
+"""``trioman fit`` end to end at a tiny size: a realistic synthetic subject's video in, a subject out, compared
+with its truth; bad input named; the bench target."""
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("anny")
+pytest.importorskip("ai_edge_litert")
+
+from trioman.runtime.formats import load_subject  # noqa: E402
+from trioman.runtime.person import MissingModelsError, load_models  # noqa: E402
+from trioman.toolkit.fit.evaluate import compare  # noqa: E402
+from trioman.toolkit.fit.fitter import FitConfig  # noqa: E402
+from trioman.toolkit.fit.run import FitRunConfig, fit_video  # noqa: E402
+from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
+
+try:
+    load_models()
+except MissingModelsError as exc:  # the models ship in the mediapipe wheel that `make install` adds
+    pytest.skip(f"person models not installed: {exc}", allow_module_level=True)
+
+QUICK = FitConfig(keyframes=8, key_iterations=60, all_iterations=40)
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fitrun")
+    synthesize_subject(SynthConfig(seed=1004, size=256, frames=20, aspect=9 / 16, coverage=0.3, style="realistic",
+                                   texture_size=256), root / "truth", progress=False, video=root / "video.mp4", workers=1)
+    truth = load_subject(root / "truth")
+    fitted = fit_video(root / "video.mp4", root / "fit", FitRunConfig(focal=float(truth.K[0, 0, 0]), test_every=4, fit=QUICK),
+                       progress=False, say=lambda line: None)
+    return root, truth, fitted
+
+
+def test_a_video_becomes_a_subject_close_to_its_truth(made):
+    root, truth, fitted = made
+    report = json.loads((root / "fit" / "fit.json").read_text())
+    s = report["summary"]
+    assert s["frames_read"] == len(truth.indices("train")) and s["frames_kept"] == fitted.num_frames >= 8
+    assert sum(s["dropped"].values()) == s["frames_read"] - s["frames_kept"]
+    assert set(fitted.split) == {"train", "test"} and fitted.body_model == "anny"
+    assert all(name in truth.frame_names for name in fitted.frame_names)
+    for name in ("fit.md", "fit_overlay.png", "fit_overlay.mp4"):
+        assert (root / "fit" / name).stat().st_size > 500, name
+    scores = compare(fitted, truth)
+    assert scores["pa_mpjpe"] < 100.0, scores  # a few iterations at 144 x 256 px; bench fit measures the real size
+    assert scores["mask_iou"] > 0.8, scores  # the person model's mask against the true person mask
+    assert s["mask_iou_mean"] > 0.5 and s["reprojection_px_mean"] < 8.0, s
+    i = 0
+    img, mask = fitted.image(i), fitted.mask(i)
+    assert img[mask == 0].max() == 0 and img[mask > 0.9].std() > 0.03  # premultiplied by the person mask
+
+
+def test_the_subject_can_be_replaced_only_with_overwrite(made, tmp_path):
+    root, truth, _ = made
+    with pytest.raises(FileExistsError, match="overwrite"):
+        fit_video(root / "video.mp4", root / "fit", FitRunConfig(fit=QUICK), progress=False, say=lambda line: None)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "thesis.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="thesis.txt"):
+        fit_video(root / "video.mp4", tmp_path / "mine", FitRunConfig(fit=QUICK), overwrite=True, progress=False,
+                  say=lambda line: None)
+    assert (tmp_path / "mine" / "thesis.txt").read_text() == "mine"
+
+
+def test_a_video_without_a_person_is_one_error(tmp_path):
+    from trioman.runtime.image_io import write_video
+
+    rng = np.random.default_rng(0)
+    write_video(tmp_path / "empty.mp4", (rng.uniform(0.3, 0.4, (96, 64, 3)).astype(np.float32) for _ in range(4)), fps=30)
+    with pytest.raises(ValueError, match=r"empty.mp4: 0 of 4 frames show one whole person .*no_person"):
+        fit_video(tmp_path / "empty.mp4", tmp_path / "out", FitRunConfig(fit=QUICK), progress=False, say=lambda line: None)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kwargs, field", [(dict(focal=10.0, fov_deg=60.0), "focal and fov_deg"), (dict(fov_deg=0.5), "fov_deg"),
+                                            (dict(test_every=1), "test_every"), (dict(focal=float("nan")), "focal")])
+def test_bad_settings_are_named(kwargs, field):
+    with pytest.raises(ValueError, match=f"^{field}: "):
+        FitRunConfig(**kwargs)
+
+
+def test_the_command_names_a_missing_video(tmp_path):
+    from tests.conftest import run_python
+
+    out = run_python(f"import sys; from trioman.cli import main; sys.exit(main(['fit', {str(tmp_path / 'nope.mp4')!r}, "
+                     f"'--out', {str(tmp_path / 's')!r}]))")
+    lines = [line for line in out.stderr.splitlines() if line.strip() and not line.startswith("INFO")]
+    assert out.returncode != 0 and len(lines) == 1 and "nope.mp4" in lines[0], out.stderr
