@@ -8,11 +8,14 @@ runs them. Nothing is downloaded at run time.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.metadata
+import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -69,6 +72,25 @@ def model_paths(root: Path | None = None) -> dict[str, Path]:
     return paths
 
 
+@contextlib.contextmanager
+def _native_stderr_silenced() -> Iterator[None]:
+    """File descriptor 2 pointed at /dev/null inside the block (native libraries' log lines); Python's own
+    ``sys.stderr`` is flushed first and works again after it. Where fd 2 cannot be redirected, nothing changes."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 class TfliteModel:
     """One .tflite file under LiteRT's interpreter (CPU, XNNPACK): ``model(x)`` -> outputs by tensor name."""
 
@@ -77,8 +99,9 @@ class TfliteModel:
             from ai_edge_litert.interpreter import Interpreter
         except ImportError:
             raise MissingModelsError(f"person models: ai-edge-litert, which runs them, is not installed: {INSTALL_HINT}") from None
-        self._interpreter: Any = Interpreter(model_path=str(path), num_threads=threads)
-        self._interpreter.allocate_tensors()
+        with _native_stderr_silenced():  # LiteRT announces its XNNPACK delegate on the C stderr, once per process
+            self._interpreter: Any = Interpreter(model_path=str(path), num_threads=threads)
+            self._interpreter.allocate_tensors()
         inputs = self._interpreter.get_input_details()
         outputs = {d["name"]: d for d in self._interpreter.get_output_details()}
         shapes = {k: tuple(int(s) for s in d["shape"]) for k, d in outputs.items()}

@@ -155,3 +155,14 @@ def test_runtime_imports_neither_torch_nor_mediapipe(models):
         print(out.status, "mediapipe" in sys.modules, sys.modules.get("torch") is not None)  # torch: blocked, None
     """, block_torch=True)
     assert proc.stdout.split() == ["no_person", "False", "False"], proc.stderr[-2000:]
+
+
+def test_loading_the_models_prints_nothing(models):
+    """LiteRT's delegate announcement on the C stderr is silenced; Python's stderr still works after the load."""
+    proc = run_python("""
+        import sys
+        from trioman.runtime.person import load_models
+        load_models()
+        print("after", file=sys.stderr)
+    """, block_torch=True)
+    assert proc.returncode == 0 and proc.stderr.strip() == "after", proc.stderr
