@@ -21,6 +21,7 @@ TARGETS = {
     "stability": ("trioman.bench.stability", "bench_stability", "stability_markdown", "StabilityBenchConfig"),
     "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown", "ScaleBenchConfig"),
     "fit": ("trioman.bench.fit", "bench_fit", "fit_markdown", "FitBenchConfig"),
+    "landmarks": ("trioman.bench.landmarks", "bench_landmarks", "landmarks_markdown", "LandmarksBenchConfig"),
 }
 # The configs' fields the library's errors name: each the option of its name (``training``: --no-training) -> the flags
 # as typed (trioman/commands/flags.py).

@@ -92,3 +92,29 @@ def test_procrustes_undoes_a_similarity():
 def test_bad_fit_settings_are_named(kwargs, field):
     with pytest.raises(ValueError, match=f"^{field}: "):
         FitConfig(**kwargs)
+
+
+def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body):
+    """The fit's chain over the active joints alone (weights moved onto each joint's nearest active ancestor)
+    equals the numpy FK + LBS of every joint, at random poses."""
+    import torch
+
+    from trioman.toolkit.fit.fitter import ACTIVE_JOINTS, _Body
+
+    base = anny_body.to_skinned_mesh()
+    body = _Body(base, correspondence(base), 300, 0)
+    pheno = torch.as_tensor([anny_body.phenotype[k] for k in ("gender", "age", "muscle", "weight", "height", "proportions")],
+                            dtype=torch.float32)
+    joints, points = body.rest(pheno)
+    rng = np.random.default_rng(1)
+    pose = torch.as_tensor(rng.normal(scale=0.5, size=(3, len(ACTIVE_JOINTS), 3)), dtype=torch.float32)
+    trans = torch.as_tensor(rng.normal(size=(3, 3)), dtype=torch.float32)
+    marks, sil, full = body.pose(joints, points, pose, trans)
+    c = body.corr
+    for k in range(3):
+        p, t = full[k].numpy().astype(np.float64), trans[k].numpy().astype(np.float64)
+        verts = base.pose(p, t)
+        G = base.skeleton.forward_kinematics(p, t)
+        ref = np.where((c.joint >= 0)[:, None], G[c.joint.clip(0), :3, 3], verts[c.vertex.clip(0)])
+        np.testing.assert_allclose(marks[k].numpy(), ref, atol=2e-5)
+        np.testing.assert_allclose(sil[k].numpy(), verts[body.sil], atol=2e-5)
