@@ -138,6 +138,8 @@ class _Body:
         self.sil = np.sort(rng.choice(base.num_vertices, size=min(points, base.num_vertices), replace=False))
         vert_ids = np.concatenate([corr.vertex[corr.vertex >= 0], self.sil])
         self.vert_ids = torch.as_tensor(vert_ids)
+        self.template = model.template_vertices[self.vert_ids].clone()  # [P, 3]
+        self.shapes = model.blendshapes[:, self.vert_ids].clone()  # [C, P, 3]
         self.n_mark_verts = int((corr.vertex >= 0).sum())
         self.active = torch.as_tensor([self.names.index(n) for n in ACTIVE_JOINTS])
         # A joint left at the zero pose has its parent's skinning transform (A_c = G_p [I | j_c - j_p] [I | -j_c]
@@ -157,9 +159,14 @@ class _Body:
         self.point_weights = torch.as_tensor(dense)  # [P, A]
 
     def rest(self, pheno: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """pheno [6] in (0, 1) -> rest joints [J, 3], rest points [P, 3] (vertex landmarks, then silhouette points)."""
-        out = self.model(None, phenotype_kwargs=pheno[None])
-        return out["rest_bone_heads"][0], out["rest_vertices"][0][self.vert_ids]
+        """pheno [6] in (0, 1) -> rest joints [J, 3], rest points [P, 3] (vertex landmarks, then silhouette points):
+        Anny's phenotype blend shapes on these points alone (its rest model, without posing the whole mesh)."""
+        m = self.model
+        _, params, local, face = m.get_tensor_inputs(None, pheno[None], None, None)
+        coeffs = m._get_phenotype_blendshape_coefficients(params, local, face)[0]  # [C]
+        joints = m.template_bone_heads + torch.einsum("cpd,c->pd", m.bone_heads_blendshapes, coeffs)
+        points = self.template + torch.einsum("cpd,c->pd", self.shapes, coeffs)
+        return joints, points
 
     def pose(self, joints: torch.Tensor, points: torch.Tensor, active_pose: torch.Tensor, trans: torch.Tensor):
         """-> (landmarks [B, M, 3] world, silhouette points [B, S, 3] world, full pose [B, J, 3])."""
