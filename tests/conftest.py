@@ -27,3 +27,15 @@ def anny_body():
     from trioman.toolkit.body.registry import create_body_model
 
     return create_body_model("anny", phenotype={"height": 0.7, "weight": 0.3}, dtype=torch.float64)
+
+
+def skip_without_person_models() -> None:
+    """Skip the calling test module when `trioman fit`'s person models (LiteRT and the mediapipe 0.10.21 wheel's
+    .tflite files, which `make install` adds) are not installed; its call sits at module level."""
+    pytest.importorskip("ai_edge_litert")
+    from trioman.runtime.person import MissingModelsError, load_models
+
+    try:
+        load_models()
+    except MissingModelsError as exc:
+        pytest.skip(f"person models not installed: {exc}", allow_module_level=True)

@@ -2,17 +2,14 @@
 
 import pytest
 
+from tests.conftest import skip_without_person_models
+
 pytest.importorskip("torch")
 pytest.importorskip("anny")
-pytest.importorskip("ai_edge_litert")
 
 from trioman.bench.fit import FitBenchConfig, bench_fit, fit_markdown  # noqa: E402
-from trioman.runtime.person import MissingModelsError, load_models  # noqa: E402
 
-try:
-    load_models()
-except MissingModelsError as exc:
-    pytest.skip(f"person models not installed: {exc}", allow_module_level=True)
+skip_without_person_models()
 
 
 def test_bench_fit_compares_a_fit_with_its_truth(tmp_path):

@@ -6,21 +6,18 @@ import json
 import numpy as np
 import pytest
 
+from tests.conftest import skip_without_person_models
+
 pytest.importorskip("torch")
 pytest.importorskip("anny")
-pytest.importorskip("ai_edge_litert")
 
 from trioman.runtime.formats import load_subject  # noqa: E402
-from trioman.runtime.person import MissingModelsError, load_models  # noqa: E402
 from trioman.toolkit.fit.evaluate import compare  # noqa: E402
 from trioman.toolkit.fit.fitter import FitConfig  # noqa: E402
 from trioman.toolkit.fit.run import FitRunConfig, fit_video  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 
-try:
-    load_models()
-except MissingModelsError as exc:  # the models ship in the mediapipe wheel that `make install` adds
-    pytest.skip(f"person models not installed: {exc}", allow_module_level=True)
+skip_without_person_models()
 
 QUICK = FitConfig(keyframes=8, key_iterations=60, all_iterations=40)
 
