@@ -37,6 +37,7 @@ class FitBenchConfig:
 
 def bench_fit(config: FitBenchConfig) -> dict:
     import dataclasses
+    import json
     import time
 
     from trioman.runtime.formats import load_subject
@@ -63,8 +64,6 @@ def bench_fit(config: FitBenchConfig) -> dict:
         t = time.perf_counter()
         fitted = fit_video(video, fit_dir, cfg, overwrite=True, progress=False, say=lambda line: None)
         seconds = time.perf_counter() - t
-        import json
-
         report = json.loads((fit_dir / "fit.json").read_text())
         scores = compare(fitted, truth)
         read = report["summary"]["frames_read"]
