@@ -13,12 +13,13 @@ skip_without_person_models()
 
 
 def test_bench_fit_compares_a_fit_with_its_truth(tmp_path):
-    r = bench_fit(FitBenchConfig(out=tmp_path, subjects=1, size=256, frames=14, iterations=20, focal="truth"))
+    r = bench_fit(FitBenchConfig(out=tmp_path, subjects=1, size=256, frames=14, iterations=20, focal="truth", avatar_iterations=10))
     (row,) = r["rows"]
     assert row["frames_read"] == 10 and 2 <= row["frames_kept"] <= 10
     assert 0 < row["pa_mpjpe"] < 300 and 0 < row["mask_iou"] <= 1 and row["seconds"] > 0
     md = fit_markdown(r)
-    assert "| s1004 |" in md and "PA-MPJPE <= 40.0 mm" in md
+    assert "| s1004 |" in md and "PA-MPJPE <= 40.0 mm" in md and "cost of fitting" in md
+    assert row["cost_of_fitting_db"] == round(row["psnr_true_poses"] - row["psnr_fitted_poses"], 2)
 
 
 @pytest.mark.parametrize("kwargs, field", [(dict(focal="guess"), "focal"), (dict(subjects=0), "subjects"),

@@ -30,7 +30,7 @@ FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
     "detail_sigma", "coverage", "pose_noise", "reach", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
-    "variants", "ablation_subjects", "jobs", "style", "aspect", "focal")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
+    "variants", "ablation_subjects", "jobs", "style", "aspect", "focal", "avatar_iterations")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="the subject's seed (default: fit 1004, the others 0)")
     parser.add_argument("--style", choices=("plain", "realistic"), default=None,
                         help="synth: the subject's style; ablation: the style of a corpus built here (default plain)")
+    parser.add_argument("--avatar-iterations", type=int, default=None,
+                        help="fit: > 0 also trains the avatar on the fit and on the true poses this long (the cost of fitting)")
     parser.add_argument("--focal", choices=("prior", "truth"), default=None,
                         help="fit: the fit refines a phone's focal (prior, default) or is given the subject's (truth)")
     parser.add_argument("--aspect", type=float, default=None, metavar="W/H",
