@@ -118,3 +118,15 @@ def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body):
         ref = np.where((c.joint >= 0)[:, None], G[c.joint.clip(0), :3, 3], verts[c.vertex.clip(0)])
         np.testing.assert_allclose(marks[k].numpy(), ref, atol=2e-5)
         np.testing.assert_allclose(sil[k].numpy(), verts[body.sil], atol=2e-5)
+
+
+def test_bad_observations_are_named():
+    N = 2
+    good = dict(keypoints=np.zeros((N, 33, 2)), confidence=np.ones((N, 33)), world=np.zeros((N, 33, 3)),
+                masks=np.zeros((N, 8, 6), np.float32), frame_index=np.arange(N), width=6, height=8)
+    with pytest.raises(ValueError, match="^keypoints: non-finite"):
+        Observations(**{**good, "keypoints": np.full((N, 33, 2), np.nan)})
+    with pytest.raises(ValueError, match=r"^confidence: expected shape \[2, 33\]"):
+        Observations(**{**good, "confidence": np.ones((N, 32))})
+    with pytest.raises(ValueError, match="^observations: no frame"):
+        Observations(**{**good, "keypoints": np.zeros((0, 33, 2))})
