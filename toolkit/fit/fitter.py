@@ -7,12 +7,13 @@ depend on the resolution:
   (``toolkit/fit/keypoints.py``);
 - silhouette: body points must project inside the person mask (one-sided: hair and clothes make the person
   larger than the body, never smaller), the squared distance to the mask sampled on a distance map;
-- world landmarks: the 3D directions of the limbs (MediaPipe's metric landmarks, camera axes) against the
-  body's, ``1 - cos``;
+- world landmarks: the 3D directions of the legs and torso (MediaPipe's metric landmarks, camera axes) against
+  the body's, ``1 - cos``;
 - temporal smoothness: the acceleration of the landmarks' 3D positions between neighbouring kept frames;
 - priors: the pose's squared angles, knees and elbows bending one way only, an upright root, the shape near
   Anny's mean, the focal near its prior.
 
+Frames the pose model read mirrored (front taken for back) get their sides exchanged first (``sides.py``).
 Coarse to fine: stage 1 fits shape, focal, camera pitch and the poses of ``keyframes`` frames spread over the
 video; stage 2 freezes them and fits every frame's pose and root from the nearest keyframe's, all frames at
 once with the smoothness term. The camera stands at the world origin, level but for the fitted pitch, looking
@@ -21,6 +22,7 @@ along +y; the world is z-up, the subject's first frame facing the camera (-y), a
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -35,6 +37,7 @@ from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.body.anny_model import PHENOTYPE_LABELS
 from trioman.toolkit.body.skinning import skinning_transforms
 from trioman.toolkit.fit.keypoints import LIMBS, Correspondence, correspondence
+from trioman.toolkit.fit.sides import body_yaw, exchange_sides, swapped_frames
 from trioman.toolkit.rotations import axis_angle_to_matrix
 
 # the prior's weight per active joint (after the root): the spine and neck bend little, the limbs freely
@@ -120,6 +123,7 @@ class FitResult:
     K: np.ndarray  # [3, 3]
     reprojection_px: np.ndarray  # [N] confidence-weighted mean landmark error
     losses: dict[str, float]  # the final terms of stage 2
+    mirrored: np.ndarray  # [N] bool: frames whose left and right landmarks were exchanged before the fit
 
 
 class _Body:
@@ -210,12 +214,14 @@ def _distance_maps(masks: np.ndarray) -> np.ndarray:
     return np.stack(out).astype(np.float32)
 
 
-def _yaw_guess(obs: Observations) -> np.ndarray:
-    """Each frame's body yaw from the world landmarks' left-right axis (shoulders and hips). -> [N] rad"""
-    w = obs.world
-    across = (w[:, 11] - w[:, 12]) + (w[:, 23] - w[:, 24])  # the person's left, camera axes
-    known = np.linalg.norm(across, axis=1) > 1e-6
-    return np.where(known, np.arctan2(across[:, 2], across[:, 0]), 0.0)
+def _unmirrored(obs: Observations) -> tuple[Observations, np.ndarray]:
+    """``obs`` with the frames read mirrored given their sides back. -> (observations, bool [N])"""
+    swap = swapped_frames(obs.world, obs.frame_index)
+    if not swap.any():
+        return obs, swap
+    return dataclasses.replace(obs, keypoints=exchange_sides(obs.keypoints, swap),
+                               confidence=exchange_sides(obs.confidence, swap),
+                               world=exchange_sides(obs.world, swap, world=True)), swap
 
 
 def _height_px(obs: Observations) -> np.ndarray:
@@ -318,6 +324,7 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfi
     """Fit Anny to ``obs``; ``base`` is Anny's default body (its topology, weights and skeleton); ``progress``:
     a callable (stage, iteration, total) or None."""
     torch.manual_seed(cfg.seed)
+    obs, mirrored = _unmirrored(obs)
     corr = correspondence(base)
     body = _Body(base, corr, cfg.silhouette_points, cfg.seed)
     prob = _Problem(obs, body, cfg)
@@ -328,7 +335,7 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfi
     known = cfg.phenotype is not None
     start = torch.as_tensor(cfg.phenotype, dtype=torch.float32).clamp(1e-4, 1 - 1e-4) if known else torch.full((6,), 0.5)
     pheno_logit = torch.logit(start).requires_grad_(not known)
-    yaw = _yaw_guess(obs)
+    yaw = np.nan_to_num(body_yaw(obs.world))
     R0 = LEVEL_CAMERA
     trans0 = _init_trans(obs, f0, base.skeleton.joints[0], R0)
 
@@ -429,4 +436,5 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfi
         phenotype={k: round(float(v), 4) for k, v in zip(PHENOTYPE_LABELS, pheno.numpy())},
         poses=full.numpy().astype(np.float64), trans=a_trans.detach().numpy().astype(np.float64), viewmat=viewmat, K=K,
         reprojection_px=reproj.numpy().astype(np.float64), losses={k: float(v.detach()) for k, v in terms.items()},
+        mirrored=mirrored,
     )

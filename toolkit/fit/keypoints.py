@@ -24,8 +24,9 @@ JOINT_LANDMARKS = {
 VERTEX_LANDMARKS = (0, 7, 8, 29, 30, 31, 32)  # nose, ears, heels, toe tips
 # how much each landmark counts in the reprojection term (hands and face points are less reliable than limbs)
 LANDMARK_WEIGHT = {**{i: 1.0 for i in range(33)}, **{i: 0.3 for i in (0, 2, 5, 7, 8, 17, 18, 19, 20, 21, 22)}}
-# limbs whose 3D direction the world landmarks give: (from, to) landmark indices
-LIMBS = ((11, 13), (13, 15), (12, 14), (14, 16), (23, 25), (25, 27), (24, 26), (26, 28), (11, 12), (23, 24), (11, 23), (12, 24))
+# limbs whose 3D direction the fit takes from the world landmarks: (from, to) landmark indices. The legs and the
+# torso only: the arms' directions are too far off to help (docs/fit.md: median 17-27 degrees against 5-9).
+LIMBS = ((23, 25), (25, 27), (24, 26), (26, 28), (11, 12), (23, 24), (11, 23), (12, 24))
 
 
 @dataclass(frozen=True)

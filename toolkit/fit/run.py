@@ -209,7 +209,8 @@ def _report(source: Path, info: VideoInfo, cfg: FitRunConfig, fit_cfg: FitConfig
         row = {"name": name, "index": t.indices[pos], "status": t.statuses[pos]}
         if pos in kept_at:
             k = kept_at[pos]
-            row.update(split=split[k], reprojection_px=round(float(result.reprojection_px[k]), 3), mask_iou=round(float(iou[k]), 4))
+            row.update(split=split[k], reprojection_px=round(float(result.reprojection_px[k]), 3), mask_iou=round(float(iou[k]), 4),
+                       mirrored=bool(result.mirrored[k]))
         else:
             row["reason"] = t.reasons[pos]
         frames.append(row)
@@ -226,6 +227,7 @@ def _report(source: Path, info: VideoInfo, cfg: FitRunConfig, fit_cfg: FitConfig
                    "viewmat": np.round(result.viewmat, 6).tolist()},
         "phenotype": result.phenotype,
         "summary": {"frames_read": len(t.names), "frames_kept": len(t.kept), "dropped": dropped,
+                    "mirrored": int(result.mirrored.sum()),
                     "reprojection_px_mean": round(float(result.reprojection_px.mean()), 3),
                     "reprojection_px_max": round(float(result.reprojection_px.max()), 3),
                     "mask_iou_mean": round(float(iou.mean()), 4), "seconds": round(seconds, 1)},
@@ -241,7 +243,9 @@ def _markdown(r: dict) -> str:
         f"# trioman fit: {Path(r['source']).name}", "",
         f"{s['frames_kept']} of {s['frames_read']} selected frames kept (dropped: {dropped}); "
         f"{r['size'][0]}x{r['size'][1]} px, focal {r['camera']['focal_px']} px "
-        f"({'given' if r['camera']['focal_given'] else 'fitted from the phone prior'}); {s['seconds']} s.", "",
+        f"({'given' if r['camera']['focal_given'] else 'fitted from the phone prior'}); {s['seconds']} s. "
+        f"{s['mirrored']} kept frames were read mirrored by the pose model (front taken for back) and had their "
+        "left and right exchanged.", "",
         "| quantity | mean | worst |", "|---|---|---|",
         f"| landmark reprojection error (px, confidence-weighted) | {s['reprojection_px_mean']} | {s['reprojection_px_max']} |",
         f"| fitted body vs person mask, IoU (clothes and hair make it < 1) | {s['mask_iou_mean']} | "

@@ -1,6 +1,8 @@
 """The fitter recovers a known synthetic pose and shape from perfect landmarks and masks; the landmarks' places
 on Anny; the fit's evaluation against the truth."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from trioman.runtime.formats import load_subject  # noqa: E402
 from trioman.toolkit.fit.evaluate import JOINT_GROUPS, procrustes  # noqa: E402
 from trioman.toolkit.fit.fitter import FitConfig, Observations, fit_sequence  # noqa: E402
 from trioman.toolkit.fit.keypoints import correspondence  # noqa: E402
+from trioman.toolkit.fit.sides import exchange_sides  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 
 PA_MPJPE_MM = 40.0  # the stated tolerance on perfect observations (the issue's target on real ones)
@@ -57,9 +60,15 @@ def test_landmarks_sit_where_mediapipe_puts_them(anny_body):
 
 
 def test_the_fitter_recovers_a_known_pose_and_shape(subject):
+    """... from perfect landmarks of which the first frames are read mirrored (front taken for back), as MediaPipe
+    reads some frames of a video: the fit gives them their sides back."""
     obs = perfect_observations(subject)
+    mirrored = np.arange(len(obs.keypoints)) < 4  # the first frames face the camera
+    obs = dataclasses.replace(obs, keypoints=exchange_sides(obs.keypoints, mirrored),
+                              world=exchange_sides(obs.world, mirrored, world=True))
     result = fit_sequence(obs, subject.body, FitConfig(focal=float(subject.K[0, 0, 0]), key_iterations=300,
                                                        all_iterations=150))
+    np.testing.assert_array_equal(result.mirrored, mirrored)
     assert result.reprojection_px.mean() < 2.0, result.reprojection_px
     names = [n for g in JOINT_GROUPS.values() for n in g]
     from trioman.toolkit.body.registry import create_body_model
