@@ -23,7 +23,7 @@ from trioman.runtime.augment.step import Step, augment_frame, make_aligner
 from trioman.runtime.formats import load_avatar, load_subject
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, SUBJECT_JSON, WEIGHTS_DIR
 from trioman.runtime.generator import GeneratorConfig, joint_groups
-from trioman.runtime.image_io import atomic_write_text, is_temp_name, remove_temp_files
+from trioman.runtime.image_io import atomic_write_text, check_not_input, is_temp_name, remove_temp_files
 from trioman.runtime.pseudo_gt import MASKS, PseudoConfig
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
@@ -90,6 +90,10 @@ def augment(
     if shard is not None and merge:
         raise ValueError("merge: runs after the `shard` jobs, not with `shard`")
     out = Path(out)
+    try:  # the output never is, holds or enters what augment reads
+        check_not_input(out, [subject_path, avatar_path, refiner_path, examiner_path])
+    except ValueError as err:
+        raise ValueError(f"out: {err}") from None
     top, out = out, (out / SHARDS_DIR / shard.name if shard is not None else out)
     had_output = False if merge else check_out(out, resume, overwrite)
 

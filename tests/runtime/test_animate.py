@@ -78,3 +78,19 @@ def test_the_mp4_has_the_requested_even_size(avatar_dir, tmp_path):
     cap = cv2.VideoCapture(str(tmp_path / "v.mp4"))
     assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (34, 34)
     cap.release()
+
+
+def test_nothing_is_written_over_or_into_an_input(avatar_dir, tmp_path, capsys):
+    # issue 41, D7: `animate --motion SUBJECT --frames-dir SUBJECT` wrote PNGs into the subject
+    motion = tmp_path / "motion"
+    motion.mkdir()  # stands for a subject folder given as --motion
+    before = sorted(p.name for p in avatar_dir.iterdir())
+    cases = [(["--frames-dir", str(motion)], f"--frames-dir: {motion}: is the input {motion}"),
+             (["--frames-dir", str(avatar_dir / "frames")], "--frames-dir: " + str(avatar_dir / "frames") + ": lies inside"),
+             (["--out", str(avatar_dir / "v.mp4")], "--out: " + str(avatar_dir / "v.mp4") + ": lies inside")]
+    for args, message in cases:
+        argv = ["animate", str(avatar_dir), "--motion", str(motion), "--out", str(tmp_path / "v.mp4"), "--size", "32"]
+        assert main(argv + args) == 1
+        assert message in capsys.readouterr().err
+    assert sorted(p.name for p in avatar_dir.iterdir()) == before and list(motion.iterdir()) == []
+    assert not (tmp_path / "v.mp4").exists()

@@ -486,3 +486,17 @@ def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs,
     (plain / AUGMENT_JSON).write_text(json.dumps(meta))
     assert main(base + ["--out", str(plain), "--resume", "--no-keep-carried"]) == 0
     assert json.loads((plain / AUGMENT_JSON).read_text())["timing"]["frames_resumed"] == 1
+
+
+def test_the_output_never_is_holds_or_enters_an_input(inputs, tmp_path, capsys):
+    # issue 41, D1 and D6: `augment AUG --out AUG --overwrite` deleted its input; --out SUBJECT/aug was accepted
+    out = tmp_path / "aug"
+    run(inputs, out, limit=1)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    argv = ["augment", str(out), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner), "--quiet"]
+    assert main(argv + ["--out", str(out), "--overwrite"]) == 1
+    assert f"--out: {out}: is the input {out}; write the output to another folder" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    for inside in (out / "again", inputs.avatar / "aug"):
+        assert main(argv + ["--out", str(inside)]) == 1
+        assert "lies inside the input" in capsys.readouterr().err and not inside.exists()

@@ -32,9 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from trioman.runtime.animate import animate, check_angles, check_video_size, parse_background
     from trioman.runtime.formats import load_avatar
     from trioman.runtime.formats.motion import motion_from_spec
+    from trioman.runtime.image_io import check_not_input
 
     bg = parse_background(args.background)
     if args.frames is not None and args.frames < 1:
@@ -43,6 +46,14 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fps: must be > 0, got {args.fps}")
     check_video_size(args.size)
     check_angles(azimuth=args.azimuth, elevation=args.elevation)
+    inputs = [args.avatar] + ([args.motion] if Path(args.motion).exists() else [])  # else a built-in motion's name
+    for flag, path in (("--out", args.out), ("--frames-dir", args.frames_dir or None)):
+        if path is None:
+            continue
+        try:  # nothing written over or into what the command reads
+            check_not_input(path, inputs)
+        except ValueError as err:
+            raise ValueError(f"{flag}: {err}") from None
     avatar = load_avatar(args.avatar)
     motion = motion_from_spec(args.motion, avatar.skeleton, args.frames)
     r = animate(avatar, motion, args.out, args.camera, args.azimuth, args.elevation, args.size, bg, args.fps,

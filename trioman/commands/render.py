@@ -74,13 +74,22 @@ def run(args: argparse.Namespace) -> int:
     from trioman.runtime.animate import EMPTY_ALPHA, check_size, parse_background
     from trioman.runtime.cameras import frame_points
     from trioman.runtime.formats import load_avatar
-    from trioman.runtime.image_io import write_png
+    from trioman.runtime.image_io import check_not_input, write_png
     from trioman.runtime.render import rasterize
 
     bg = parse_background(args.background)
     out = Path(args.out)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"--out: the folder {out.parent} does not exist")
+    pose_source = None if args.pose == "rest" else _split_frame(args.pose)[0]
+    try:  # the image never replaces or enters what the command reads: the avatar, the subject or motion of --pose
+        check_not_input(out, [args.avatar, pose_source])
+    except ValueError as err:
+        raise ValueError(f"--out {err}") from None
+    try:
+        size = None if args.size is None else check_size(args.size)
+    except ValueError as err:
+        raise ValueError(f"--{err}") from None
     avatar = load_avatar(args.avatar)
     pose, trans, subject_cam = resolve_pose(args.pose, avatar.skeleton)
     t0 = time.perf_counter()
@@ -89,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
         if subject_cam is None:
             raise ValueError("--camera: 'subject' needs --pose SUBJECT@FRAME (the camera comes from that frame)")
         K, viewmat, width, height = subject_cam
-        if args.size is not None:  # keep the view, change the resolution
-            s = check_size(args.size) / max(width, height)
+        if size is not None:  # keep the view, change the resolution
+            s = size / max(width, height)
             K = K.copy()
             K[:2] *= s
             width, height = round(width * s), round(height * s)
@@ -104,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--camera: expected front, subject or AZ,EL in degrees, got {args.camera!r}") from None
             if not (math.isfinite(az) and math.isfinite(el)):
                 raise ValueError(f"--camera: AZ,EL must be finite degrees, got {args.camera!r}")
-        width = height = check_size(args.size or 512)
+        width = height = size or 512
         try:
             K, viewmat, _ = frame_points(g.means, (width, height), np.deg2rad(az), np.deg2rad(el))
         except ValueError as err:
