@@ -14,7 +14,7 @@ import torch
 
 from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
-from trioman.runtime.image_io import atomic_write_text, naming_os_errors, remove_temp_files
+from trioman.runtime.image_io import atomic_write_text, check_folder_target, check_not_input, naming_os_errors, remove_temp_files
 from trioman.runtime.render.timing import stage
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
@@ -140,6 +140,14 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         raise FileExistsError(f"{run}: a run is already there (pass `resume` to continue it, or choose another `run`)")
     if extend_iterations is not None and not resume:
         raise ValueError("extend_iterations: needs `resume` (it continues a run)")
+    inputs = [subject_path, cfg.extra_frames]
+    try:  # a new run takes an absent or empty folder, never one inside or around what it reads
+        if (run / CONFIG_JSON).exists():
+            check_not_input(run, inputs)
+        else:
+            check_folder_target(run, False, inputs=inputs)
+    except ValueError as err:
+        raise ValueError(f"run: {err}") from None
     subject = load_subject(subject_path)
     cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
     frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)

@@ -350,3 +350,28 @@ def test_evaluate_at_the_true_poses(subject, tmp_path):
         assert (stored["mean"]["psnr"] == true["mean"]["psnr"]) == same
     with pytest.raises(ValueError, match="poses: expected"):
         evaluate(run, "test", progress=False, poses="fitted")
+
+
+def test_a_new_run_takes_only_an_absent_or_empty_folder_outside_its_inputs(subject, tmp_path, capsys):
+    # issue 41, D3: `train --out` into the subject, an avatar, `.` or a folder of another run's checkpoints
+    from trioman.cli import main
+
+    other = tmp_path / "other"
+    (other / "checkpoints").mkdir(parents=True)
+    (other / "checkpoints" / "ckpt_000100.pt").write_bytes(b"someone else's")
+    (other / "train_log.csv").write_text("step,loss\n")
+    before = {p: p.read_bytes() for p in subject.rglob("*") if p.is_file()}
+    cases = [(other, "folder exists and is not empty (choose another output folder)"),
+             (subject, f"--out: {subject}: is the input {subject}"),
+             (subject / "run", f"--out: {subject / 'run'}: lies inside the input {subject}"),
+             (tmp_path, "folder exists and is not empty")]
+    for out, message in cases:
+        assert main(["train", str(subject), "--out", str(out), "--iterations", "2", "--quiet"]) == 1
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, err
+    assert (other / "checkpoints" / "ckpt_000100.pt").read_bytes() == b"someone else's"
+    assert (other / "train_log.csv").read_text() == "step,loss\n" and not (other / "config.json").exists()
+    assert {p: p.read_bytes() for p in subject.rglob("*") if p.is_file()} == before
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["train", str(subject), "--out", str(empty), "--iterations", "2", "--quiet"]) == 0
