@@ -125,10 +125,13 @@ def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = No
     if saved.augment is not None:
         aug = saved.augment
         words += ["--augment", aug.mode]
-        default = dataclasses.asdict(type(aug)(mode=aug.mode, refiner=aug.refiner, examiner=aug.examiner))
+        # the command's defaults: keep_carried is on wherever there is a Refiner (trioman/commands/train.py)
+        default = dataclasses.asdict(type(aug)(mode=aug.mode, refiner=aug.refiner, examiner=aug.examiner,
+                                               keep_carried=aug.mode in ("refined", "examined")))
         for name, value in dataclasses.asdict(aug).items():
             if name != "mode" and value is not None and (name in ("refiner", "examiner") or value != default[name]):
-                words += [_AUGMENT_OWN_FLAGS.get(name, "--augment-" + name.replace("_", "-")), str(value)]
+                flag = _AUGMENT_OWN_FLAGS.get(name, "--augment-" + name.replace("_", "-"))
+                words += ([flag] if value else ["--no-" + flag[2:]]) if isinstance(value, bool) else [flag, str(value)]
     words.append("--resume")
     target = extend_to if extend_to is not None else (saved.iterations if extensions else None)
     if target is not None:

@@ -80,3 +80,28 @@ def test_a_run_recorded_before_an_avatar_field_existed_resumes_with_its_preset(s
     record["train"]["avatar"]["pose_subdivisions"] = None  # a recorded value is the run's choice: a change is refused
     with pytest.raises(ValueError, match=r"avatar.pose_subdivisions: None -> 0"):
         check_resume(tmp_path, record, subj, full, 0, None)
+
+
+@pytest.mark.parametrize("mode, keep_carried", [("refined", True), ("refined", False), ("examined", True), ("aligned", False)])
+def test_the_suggested_command_of_an_augmented_run_parses_back_to_its_config(tmp_path, mode, keep_carried):
+    # issue 41: the hint compared keep_carried with the dataclass default (False), not the command's (True with a
+    # Refiner), and printed `--augment-keep-carried True`, which argparse refuses
+    import shlex
+
+    from trioman.cli import build_parser
+    from trioman.commands.train import augment_config
+    from trioman.toolkit.train.augmentation import AugmentConfig
+    from trioman.toolkit.train.resume import resume_command
+
+    models = {}
+    if mode != "aligned":
+        for name in ("refiner", "examiner") if mode == "examined" else ("refiner",):
+            models[name] = str(tmp_path / f"{name}.onnx")
+            (tmp_path / f"{name}.onnx").write_bytes(b"")
+    aug = AugmentConfig(mode=mode, keep_carried=keep_carried, per_frame=3 if mode == "examined" else None, pool=4, **models)
+    record = {"subject": str(tmp_path / "s"), "extensions": [],
+              "train": dataclasses.replace(preset("quick"), augment=aug).to_dict()}
+    words = shlex.split(resume_command(tmp_path / "run", record))
+    assert words[:2] == ["trioman", "train"]
+    args = build_parser().parse_args(words[1:])  # argparse exits on a flag it refuses
+    assert augment_config(args) == aug and args.resume
