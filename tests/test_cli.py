@@ -119,3 +119,28 @@ def test_describe_os_error():
     assert describe_os_error(OSError(errno.EXDEV, "Invalid cross-device link", "/a", None, "/b")) == \
         "/a -> /b: Invalid cross-device link"
     assert describe_os_error(FileNotFoundError("run: no checkpoint")) == "run: no checkpoint"
+
+
+def test_a_broken_torch_install_is_one_line_naming_the_extra():
+    # issue 41, D14: when `import torch` itself fails, training commands printed a raw traceback
+
+    r = run_python("""
+        import importlib.abc, importlib.machinery, sys
+
+        class Broken(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+            def find_spec(self, name, path=None, target=None):
+                return importlib.machinery.ModuleSpec(name, self) if name == "torch" else None
+            def create_module(self, spec):
+                return None
+            def exec_module(self, module):
+                raise OSError("libtorch_cpu.so: cannot open shared object file: No such file or directory")
+
+        sys.meta_path.insert(0, Broken())
+        from trioman.cli import main
+        sys.exit(main(["train", "SUBJECT", "--out", "RUN"]))
+    """)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.strip() == ("trioman train: error: 'trioman train' needs the 'train' extra, and torch is installed but "
+                                "fails to import (OSError: libtorch_cpu.so: cannot open shared object file: No such file "
+                                "or directory): reinstall it, pip install 'trioman[train]' (CPU torch: pip install "
+                                "torch==2.13.0 first)"), r.stderr

@@ -60,13 +60,20 @@ class MissingExtraError(RuntimeError):
 
 def require_extra(command: str, extra: str) -> None:
     """Raise a clear error naming the pip extra when its packages are not importable."""
+    hint = f"pip install 'trioman[{extra}]'" + (" (CPU torch: pip install torch==2.13.0 first)"
+                                                 if "torch" in EXTRA_IMPORTS[extra] else "")
     missing = [name for name in EXTRA_IMPORTS[extra] if importlib.util.find_spec(name) is None]
     if missing:
         raise MissingExtraError(
             f"'trioman {command}' needs the '{extra}' extra, and {', '.join(missing)} "
-            f"{'is' if len(missing) == 1 else 'are'} not installed: pip install 'trioman[{extra}]'"
-            + (" (CPU torch: pip install torch==2.13.0 first)" if "torch" in EXTRA_IMPORTS[extra] else "")
-        )
+            f"{'is' if len(missing) == 1 else 'are'} not installed: {hint}")
+    for name in EXTRA_IMPORTS[extra]:  # installed but broken (a partial install, a wrong build): one line too
+        try:
+            importlib.import_module(name)
+        except Exception as err:  # noqa: BLE001 (any failure of a third-party import)
+            first = (str(err).strip().splitlines() or [""])[0][:200]
+            raise MissingExtraError(f"'trioman {command}' needs the '{extra}' extra, and {name} is installed but "
+                                    f"fails to import ({type(err).__name__}: {first}): reinstall it, {hint}") from None
 
 
 # The causes a user can act on, by errno; any other OSError shows its own strerror.
