@@ -123,7 +123,6 @@ def test_describe_os_error():
 
 def test_a_broken_torch_install_is_one_line_naming_the_extra():
     # issue 41, D14: when `import torch` itself fails, training commands printed a raw traceback
-
     r = run_python("""
         import importlib.abc, importlib.machinery, sys
 
