@@ -17,13 +17,16 @@ from trioman.runtime.formats.subject import (
 from trioman.runtime.image_io import is_temp_name
 
 
+MAX_PER_FRAME = 64  # candidates per source frame (each is a render, a Refiner pass and an Examiner score)
+
+
 def check_options(per_frame: Any, threshold: Any, seed: Any, frames: Any, limit: Any, examiner: Any,
                   resume: bool, overwrite: bool) -> None:
     def integer(v: Any) -> bool:
         return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
-    if not integer(per_frame) or per_frame < 1:
-        raise ValueError(f"per_frame: must be an integer >= 1, got {per_frame!r}")
+    if not integer(per_frame) or not 1 <= per_frame <= MAX_PER_FRAME:
+        raise ValueError(f"per_frame: must be an integer in [1, {MAX_PER_FRAME}], got {per_frame!r}")
     if threshold is not None:
         if isinstance(threshold, bool) or not isinstance(threshold, numbers.Real) or not 0.0 <= threshold <= 1.0:
             raise ValueError(f"threshold: must be a number in [0, 1], got {threshold!r}")

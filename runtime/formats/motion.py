@@ -114,10 +114,15 @@ def motion_from_subject(path: str | os.PathLike, split: str = "test", sequence: 
                   subject.body.skeleton.joint_names, float(subject.meta.get("fps", DEFAULT_FPS)))
 
 
+MAX_FRAMES = 108_000  # a shipped motion's longest length
+
+
 def motion_from_spec(spec: str, skeleton: Skeleton, frames: int | None = None) -> Motion:
     """Resolve ``trioman animate --motion SPEC`` for ``skeleton``: a shipped motion name (MOTIONS), a
     motion .npz file, or a subject folder (its test poses; ``SUBJECT:SEQUENCE`` for one sequence).
     ``frames`` sets a shipped motion's length. -> the motion in the skeleton's joint order."""
+    if frames is not None and not 1 <= frames <= MAX_FRAMES:
+        raise ValueError(f"frames: must lie in [1, {MAX_FRAMES}] (an hour at 30 fps), got {frames}")
     if spec in MOTIONS:
         n = frames if frames is not None else DEFAULT_FRAMES[spec]
         return MOTIONS[spec](skeleton, n).for_skeleton(skeleton)

@@ -65,6 +65,7 @@ def _transparent(avatar_dir):
 @pytest.mark.parametrize("args, message", [
     (["--size", "257"], "--size: 257 is odd, and an MP4 needs even sides (it would be 256x256); use 256 or 258"),
     (["--azimuth", "nan"], "--azimuth: must be a finite number of degrees, got nan"),
+    (["--frames", "100000000"], "--frames: must lie in [1, 108000] (an hour at 30 fps), got 100000000"),  # issue 41, D13
 ])
 def test_command_line_refusals(avatar_dir, tmp_path, capsys, args, message):
     assert main(["animate", str(avatar_dir), "--motion", "walk", "--out", str(tmp_path / "v.mp4"), *args]) == 1

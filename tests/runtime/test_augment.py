@@ -298,7 +298,8 @@ def test_overwrite_removes_only_what_augment_wrote_and_resume_removes_temporary_
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--per-frame", "0"], "--per-frame: must be an integer >= 1, got 0"),
+    (["--per-frame", "0"], "--per-frame: must be an integer in [1, 64], got 0"),
+    (["--per-frame", "100000000"], "--per-frame: must be an integer in [1, 64], got 100000000"),  # issue 41, D12
     (["--threshold", "1.5"], "--threshold: must be a number in [0, 1], got 1.5"),
     (["--threshold", "-0.1"], "--threshold: must be a number in [0, 1], got -0.1"),
     (["--limit", "0"], "--limit: must be an integer >= 1, got 0"),
@@ -310,7 +311,7 @@ def test_overwrite_removes_only_what_augment_wrote_and_resume_removes_temporary_
                                              "export the Refiner at the subject's size (trioman export onnx --refiner CKPT --size 32)"),
     (["--refiner", "{root}/examiner.onnx"], "metadata 'trioman.kind': expected 'refiner', got 'examiner'"),
     (["--avatar", "{root}/other_avatar"], "other_avatar has 4 joints, but the subject's body has 104 joints"),
-], ids=["per-frame", "threshold-high", "threshold-low", "limit", "seed", "resume-overwrite", "refiner-missing",
+], ids=["per-frame", "per-frame-huge", "threshold-high", "threshold-low", "limit", "seed", "resume-overwrite", "refiner-missing",
         "examiner-missing", "refiner-size", "refiner-kind", "joints"])
 def test_bad_inputs_fail_before_any_work(inputs, tmp_path, capsys, args, message):
     out = tmp_path / "out"

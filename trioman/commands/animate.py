@@ -36,12 +36,12 @@ def run(args: argparse.Namespace) -> int:
 
     from trioman.runtime.animate import animate, check_angles, check_video_size, parse_background
     from trioman.runtime.formats import load_avatar
-    from trioman.runtime.formats.motion import motion_from_spec
+    from trioman.runtime.formats.motion import MAX_FRAMES, motion_from_spec
     from trioman.runtime.image_io import check_not_input
 
     bg = parse_background(args.background)
-    if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--frames: must be >= 1, got {args.frames}")
+    if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
+        raise ValueError(f"--frames: must lie in [1, {MAX_FRAMES}] (an hour at 30 fps), got {args.frames}")
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps: must be > 0, got {args.fps}")
     check_video_size(args.size)
