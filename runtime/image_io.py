@@ -293,6 +293,10 @@ def atomic_folder(path: PathLike, overwrite: bool = False, kind: FolderKind | No
     fsync_dir(path.parent)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+    stale = re.compile(re.escape(f".{path.name}.") + r"[0-9a-f]{8}\.tmp")
+    for left in path.parent.iterdir():  # what an interrupted (kill -9) write of this same output left behind
+        if stale.fullmatch(left.name) and left.is_dir() and not left.is_symlink():
+            shutil.rmtree(left, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -387,3 +387,19 @@ def test_an_output_folder_is_never_its_own_input(tmp_path, out, given, word):
         with atomic_folder(tmp_path / out, overwrite=True, kind=SUBJECTISH, inputs=[None, tmp_path / given]):
             pass
     assert (tmp_path / given / "thing.json").is_file() and not (tmp_path / "in" / "out").exists()
+
+
+def test_atomic_folder_removes_what_an_interrupted_write_of_the_same_output_left(tmp_path):
+    # issue 41, L1: a kill -9 during `export avatar` left `.OUT.xxxxxxxx.tmp/` beside the output for ever
+    from trioman.runtime.image_io import atomic_folder
+
+    left = tmp_path / ".out.0123abcd.tmp"
+    left.mkdir()
+    (left / "gaussians.npz").write_bytes(b"half")
+    kept = [tmp_path / ".other.0123abcd.tmp", tmp_path / ".out.0123abcd.tmp.old", tmp_path / "out.0123abcd.tmp"]
+    for p in kept:  # another output's, an old output kept by an interrupted swap, a user's folder
+        p.mkdir()
+    with atomic_folder(tmp_path / "out") as tmp:
+        (tmp / "a.txt").write_text("new")
+    assert not left.exists() and all(p.is_dir() for p in kept)
+    assert (tmp_path / "out" / "a.txt").read_text() == "new"
