@@ -68,10 +68,15 @@ def check_out(out: Path, resume: bool, overwrite: bool) -> bool:
     if not (resume or overwrite):
         raise FileExistsError(f"out: {out} exists and is not empty (pass `resume` to continue an interrupted run "
                               f"there, `overwrite` to replace it, or choose another `out`)")
+    action = "resume" if resume else "replace"
     if not is_augment:
-        action = "resume" if resume else "replace"
         raise FileExistsError(f"out: {out} is not empty and holds no {AUGMENT_JSON}: not a `trioman augment` "
                               f"output, refusing to {action} it")
+    for root, dirs, files in os.walk(out):  # a link would send the writes (and an overwrite's removals) elsewhere
+        for name in dirs + files:
+            if (Path(root) / name).is_symlink():
+                raise FileExistsError(f"out: {Path(root) / name} is a link, which trioman augment never writes; "
+                                      f"refusing to {action} {out}")
     return True
 
 

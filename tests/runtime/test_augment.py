@@ -4,6 +4,7 @@ resume after an interruption, refusals and bad inputs; a run without torch."""
 
 import hashlib
 import json
+import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -501,3 +502,16 @@ def test_the_output_never_is_holds_or_enters_an_input(inputs, tmp_path, capsys):
     for inside in (out / "again", inputs.avatar / "aug"):
         assert main(argv + ["--out", str(inside)]) == 1
         assert "lies inside the input" in capsys.readouterr().err and not inside.exists()
+
+
+def test_a_link_inside_an_earlier_output_is_refused_before_anything_is_written(inputs, tmp_path):
+    # issue 41, D4: `augment --overwrite` where OUT/images links to a folder outside replaced files there
+    out, outside = tmp_path / "o", tmp_path / "outside"
+    run(inputs, out, limit=1)
+    shutil.move(out / "images", outside)
+    (out / "images").symlink_to(outside, target_is_directory=True)
+    before = {p: p.read_bytes() for p in outside.iterdir()}
+    for flag in ("overwrite", "resume"):
+        with pytest.raises(FileExistsError, match=rf"^out: {out / 'images'} is a link, which trioman augment never writes"):
+            run(inputs, out, limit=2, **{flag: True})
+    assert {p: p.read_bytes() for p in outside.iterdir()} == before and (out / "images").is_symlink()
