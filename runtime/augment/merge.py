@@ -14,7 +14,8 @@ import numpy as np
 from trioman.runtime.augment.assemble import finish
 from trioman.runtime.augment.layout import RECORDS_DIR, record_path, running_header
 from trioman.runtime.augment.records import check_record, read_record
-from trioman.runtime.formats.common import read_json
+from trioman.runtime.augment.step import frame_seed
+from trioman.runtime.formats.common import FormatError, read_json
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR
 from trioman.runtime.shards import SHARDS_DIR, Shard
 
@@ -35,9 +36,19 @@ def merge(out: Path, subj: Any, selection: np.ndarray, shards: list[dict[str, An
                 if record_path(out, name).is_file():  # moved by an earlier merge
                     continue
                 raise ValueError(f"merge: shard {rec['shard']} has no record for frame {name} ({src})")
-            for f in check_record(read_json(src), src, folder, name, index_of.get(name, -1))["frames"]:
+            index = index_of.get(name, -1)
+            rec_ = check_record(read_json(src), src, folder, name, index)
+            expected = frame_seed(settings["seed"], index)
+            if rec_["seed"] != expected:  # another run's frame
+                raise FormatError(f"{src}: seed: expected {expected} (the run's seed {settings['seed']} for frame "
+                                  f"{name}), got {rec_['seed']}")
+            for f in rec_["frames"]:
                 for sub in (IMAGES_DIR, MASKS_DIR) + ((WEIGHTS_DIR,) if f.get("weights") else ()):
-                    moves.append((folder / sub / f"{f['name']}.png", out / sub / f"{f['name']}.png"))
+                    file = folder / sub / f"{f['name']}.png"
+                    if file.is_symlink() or not file.is_file():  # a link would bring in what lies elsewhere
+                        raise FormatError(f"{file}: expected a file written by the shard's job, found "
+                                          f"{'a link' if file.is_symlink() else 'no file'}")
+                    moves.append((file, out / sub / f"{f['name']}.png"))
             moves.append((src, record_path(out, name)))
     for d in (out / IMAGES_DIR, out / MASKS_DIR, out / RECORDS_DIR, out / WEIGHTS_DIR):
         d.mkdir(parents=True, exist_ok=True)

@@ -40,6 +40,7 @@ def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, ca
      r"candidates\[0\]\.score: expected null or a number in \[0, 1\], got 3.0"),
     (lambda rec: {**rec, "frames": [{**rec["frames"][0], "name": "../../../x"}]}, r"frames\[0\]\.name"),
     (lambda rec: {**rec, "seed": "abc"}, "seed: expected an integer"),
+    (lambda rec: {**rec, "seed": rec["seed"] + 1}, r"seed: expected \d+ \(the run's seed 7 for frame "),  # issue 41, D9
     (None, "malformed JSON"),  # truncated
 ])
 def test_a_corrupt_shard_record_is_named_and_nothing_moves(inputs, tmp_path, capsys, corrupt, message):  # noqa: F811
@@ -92,3 +93,24 @@ def test_a_swapped_frame_file_in_a_shard_is_named_and_nothing_moves(inputs, tmp_
         rec = json.loads(path.read_text())
         path.write_text(json.dumps({**rec, "frames": [{k: v for k, v in f.items() if k != "sha256"} for f in rec["frames"]]}))
     assert main(argv(inputs, out, "--merge")) == 0
+
+
+def test_a_shard_frame_that_is_a_link_is_named_and_nothing_moves(inputs, tmp_path, capsys):  # noqa: F811
+    """Issue 41, D9: --merge moved a link to a file outside into the output (the same bytes pass the sha256)."""
+    import json
+    import shutil
+
+    out = tmp_path / "sharded"
+    for i in range(2):
+        assert main(argv(inputs, out, "--shard", f"{i}/2")) == 0
+    capsys.readouterr()
+    shard = out / "shards" / "1-of-2"
+    frame = json.loads(sorted((shard / "records").glob("*.json"))[0].read_text())["frames"][0]["name"]
+    image, outside = shard / "images" / f"{frame}.png", tmp_path / "outside.png"
+    shutil.move(image, outside)
+    image.symlink_to(outside)
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    assert main(argv(inputs, out, "--merge")) == 1
+    err = capsys.readouterr().err
+    assert f"{image}: expected a file written by the shard's job, found a link" in err and err.count("\n") == 1, err
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before and image.is_symlink()
