@@ -43,7 +43,10 @@ def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], list[dict[str, An
     meta = read_json(meta_path, f"missing file (is {root} a trioman augment output?)")
     settings = _check_settings(meta, meta_path)
     records = []
+    inside = root.resolve() / RECORDS_DIR
     for record_path in sorted((root / RECORDS_DIR).glob("*.json")):
+        if inside not in record_path.resolve().parents:
+            raise FormatError(f"{record_path}: a link that leads outside {inside}; an augment output holds no links")
         records.append(_check_record(read_json(record_path), record_path, settings["per_frame"]))
     if not records:
         raise FormatError(f"{root / RECORDS_DIR}: no records (the run finished no source frame)")
@@ -122,7 +125,7 @@ def frame_path(root: str | os.PathLike, name: str, where: Any = None) -> Path:
     images = Path(root) / IMAGES_DIR
     check_frame_name(name, where or images, "frame name")
     path = images / f"{name}.png"
-    if images.resolve() not in path.resolve().parents:
+    if Path(root).resolve() / IMAGES_DIR not in path.resolve().parents:  # images/ itself may not be a link either
         raise FormatError(f"{where or images}: frame {name!r}: its file is a link that leads outside {images}")
     return path
 

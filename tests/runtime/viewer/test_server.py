@@ -263,6 +263,24 @@ def test_a_kept_frame_linked_outside_the_folder_is_not_read(augmented, tmp_path)
         v.stop()
 
 
+def test_an_images_folder_or_record_linked_outside_is_not_read(augmented, tmp_path, capsys):
+    # issue 41, D8: with AUG/images itself a link outside, every frame read through it passed the check
+    import shutil
+
+    outside = tmp_path / "outside_images"
+    shutil.move(augmented / "images", outside)
+    (augmented / "images").symlink_to(outside, target_is_directory=True)
+    assert main(["view", "--augmented", str(augmented), "--port", "0"]) == 1
+    assert "its file is a link that leads outside" in capsys.readouterr().err
+    (augmented / "images").unlink()
+    shutil.move(outside, augmented / "images")
+    record = augmented / "records" / "000001.json"
+    shutil.move(record, tmp_path / "r.json")
+    record.symlink_to(tmp_path / "r.json")
+    assert main(["view", "--augmented", str(augmented), "--port", "0"]) == 1
+    assert f"{record}: a link that leads outside" in capsys.readouterr().err
+
+
 def test_an_address_this_machine_lacks_is_one_line(avatar_dir, capsys):
     from trioman.runtime.viewer.server import check_port
 
