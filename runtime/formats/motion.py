@@ -3,7 +3,7 @@
     format       0-d str   "trioman-motion"
     version      0-d int   1
     name         0-d str   the motion's name
-    fps          0-d float frames per second (> 0)
+    fps          0-d float frames per second (in FPS_RANGE)
     joint_names  [J] str   the joints of ``poses``, matched by name to an avatar's skeleton
     poses        [T, J, 3] float32 axis-angle per joint (radians, world-aligned axes, see skeleton.py)
     trans        [T, 3]    float32 root translation (metres)
@@ -25,6 +25,7 @@ from trioman.runtime.skeleton import Skeleton
 
 MOTION_FORMAT = "trioman-motion"
 MOTION_VERSION = 1
+FPS_RANGE = (0.1, 1000.0)  # frames per second a video codec takes
 _FIELDS = ("format", "version", "name", "fps", "joint_names", "poses", "trans")
 MAX_ANGLE = 1e3  # radians: a larger axis-angle is no joint rotation (float32 sin/cos lose it)
 MAX_TRANS = 1e4  # metres from the origin
@@ -52,8 +53,8 @@ def load_motion(path: str | os.PathLike) -> Motion:
         raise format_error(path, "version", f"unknown version {version} (this trioman reads version {MOTION_VERSION})")
     name = _scalar(arrays, "name", "U", path)
     fps = float(_scalar(arrays, "fps", "fiu", path))
-    if not (np.isfinite(fps) and fps > 0):
-        raise format_error(path, "fps", f"must be a finite number > 0, got {fps}")
+    if not (np.isfinite(fps) and FPS_RANGE[0] <= fps <= FPS_RANGE[1]):
+        raise format_error(path, "fps", f"must lie in [{FPS_RANGE[0]}, {FPS_RANGE[1]}] frames per second, got {fps}")
     names = arrays["joint_names"]
     if names.ndim != 1 or names.dtype.kind != "U" or len(names) == 0:
         raise format_error(path, "joint_names", f"expected a non-empty 1-D str array, got dtype {names.dtype} shape {list(names.shape)}")

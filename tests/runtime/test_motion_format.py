@@ -45,7 +45,8 @@ def _rewrite(path, **changes):
     (dict(poses=None), "poses: missing array"),
     (dict(format=np.array("something-else")), "format: expected 'trioman-motion'"),
     (dict(version=np.array(9)), "version: unknown version 9"),
-    (dict(fps=np.array(0.0)), "fps: must be a finite number > 0"),
+    (dict(fps=np.array(0.0)), r"fps: must lie in \[0.1, 1000.0\] frames per second, got 0.0"),
+    (dict(fps=np.array(1e-30)), r"fps: must lie in \[0.1, 1000.0\] frames per second, got 1e-30"),  # issue 41, U3
     (dict(fps=np.array([30.0])), "fps: expected a scalar"),
     (dict(joint_names=np.array(["a", "a"])), "joint_names: "),
     (dict(poses=np.zeros((8, 3, 3), np.float32)), r"poses: expected float \[T >= 1, 18, 3\]"),

@@ -36,14 +36,14 @@ def run(args: argparse.Namespace) -> int:
 
     from trioman.runtime.animate import animate, check_angles, check_video_size, parse_background
     from trioman.runtime.formats import load_avatar
-    from trioman.runtime.formats.motion import MAX_FRAMES, motion_from_spec
+    from trioman.runtime.formats.motion import FPS_RANGE, MAX_FRAMES, motion_from_spec
     from trioman.runtime.image_io import check_not_input
 
     bg = parse_background(args.background)
     if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
         raise ValueError(f"--frames: must lie in [1, {MAX_FRAMES}] (an hour at 30 fps), got {args.frames}")
-    if args.fps is not None and not args.fps > 0:
-        raise ValueError(f"--fps: must be > 0, got {args.fps}")
+    if args.fps is not None and not FPS_RANGE[0] <= args.fps <= FPS_RANGE[1]:
+        raise ValueError(f"--fps: must lie in [{FPS_RANGE[0]}, {FPS_RANGE[1]}] frames per second, got {args.fps}")
     check_video_size(args.size)
     check_angles(azimuth=args.azimuth, elevation=args.elevation)
     inputs = [args.avatar] + ([args.motion] if Path(args.motion).exists() else [])  # else a built-in motion's name
