@@ -26,6 +26,8 @@ from trioman.runtime.skeleton import Skeleton
 MOTION_FORMAT = "trioman-motion"
 MOTION_VERSION = 1
 FPS_RANGE = (0.1, 1000.0)  # frames per second a video codec takes
+MAX_FRAMES = 108_000  # a motion's longest length (an hour at 30 fps)
+MAX_ARRAY_BYTES = MAX_FRAMES * 256 * 3 * 8  # the most a motion file's array may take once decompressed
 _FIELDS = ("format", "version", "name", "fps", "joint_names", "poses", "trans")
 MAX_ANGLE = 1e3  # radians: a larger axis-angle is no joint rotation (float32 sin/cos lose it)
 MAX_TRANS = 1e4  # metres from the origin
@@ -41,7 +43,7 @@ def _scalar(arrays: dict, key: str, kind: str, where: Path):
 def load_motion(path: str | os.PathLike) -> Motion:
     """Load and validate a motion file. -> Motion with joint_names and fps set."""
     path = Path(path)
-    arrays = load_npz(path)
+    arrays = load_npz(path, max_bytes=MAX_ARRAY_BYTES)
     for key in _FIELDS:
         if key not in arrays:
             raise format_error(path, key, "missing array")
@@ -62,8 +64,8 @@ def load_motion(path: str | os.PathLike) -> Motion:
         raise format_error(path, "joint_names", "names must be unique")
     J = len(names)
     poses, trans = arrays["poses"], arrays["trans"]
-    if poses.dtype.kind != "f" or poses.ndim != 3 or poses.shape[1:] != (J, 3) or len(poses) == 0:
-        raise format_error(path, "poses", f"expected float [T >= 1, {J}, 3], got dtype {poses.dtype} shape {list(poses.shape)}")
+    if poses.dtype.kind != "f" or poses.ndim != 3 or poses.shape[1:] != (J, 3) or not 1 <= len(poses) <= MAX_FRAMES:
+        raise format_error(path, "poses", f"expected float [T in [1, {MAX_FRAMES}], {J}, 3], got dtype {poses.dtype} shape {list(poses.shape)}")
     if trans.dtype.kind != "f" or trans.shape != (len(poses), 3):
         raise format_error(path, "trans", f"expected float [{len(poses)}, 3] (one per pose), got dtype {trans.dtype} shape {list(trans.shape)}")
     for key, a in (("poses", poses), ("trans", trans)):
@@ -113,9 +115,6 @@ def motion_from_subject(path: str | os.PathLike, split: str = "test", sequence: 
     name = f"{Path(path).name}:{sequence or split}"
     return Motion(name, np.array(subject.poses[keep]), np.array(subject.trans[keep]),
                   subject.body.skeleton.joint_names, float(subject.meta.get("fps", DEFAULT_FPS)))
-
-
-MAX_FRAMES = 108_000  # a shipped motion's longest length
 
 
 def motion_from_spec(spec: str, skeleton: Skeleton, frames: int | None = None) -> Motion:
