@@ -177,6 +177,9 @@ class Subject:
 # validation helpers (shared by load and save; ``where`` is the file path or "save_subject")
 
 
+MAX_SIDE = 8192  # a subject's frames' longest side (pixels): an 8K frame
+
+
 def check_subject_meta(meta: Any, where: Any) -> dict[str, Any]:
     get = check_header(meta, where, SUBJECT_FORMAT, SUBJECT_VERSION, "subject")
     if get("up_axis") != "z":
@@ -185,6 +188,9 @@ def check_subject_meta(meta: Any, where: Any) -> dict[str, Any]:
         v = get(field)
         if not is_int(v) or v <= 0:
             raise format_error(where, field, f"expected a positive integer, got {v!r}")
+        if field != "num_frames" and v > MAX_SIDE:
+            raise format_error(where, field, f"{v} pixels, more than the {MAX_SIDE} a subject may have "
+                                             f"(an 8K frame's; scale the frames down)")
     bg = get("background")
     if not (isinstance(bg, list) and len(bg) == 3 and all(is_number(c) and 0.0 <= c <= 1.0 for c in bg)):
         raise format_error(where, "background", f"expected [r, g, b] with values in [0, 1], got {bg!r}")

@@ -319,6 +319,7 @@ def test_unknown_version(subject_dir):
         (dict(units="cm"), r"units: expected 'm' \(metres\), got 'cm'"),
         (dict(up_axis="y"), r"up_axis: expected 'z', got 'y'"),
         (dict(width=-4), r"width: expected a positive integer, got -4"),
+        (dict(height=20000), r"height: 20000 pixels, more than the 8192 a subject may have"),  # issue 41, D11
         (dict(height=12.0), r"height: expected a positive integer, got 12.0"),
         (dict(background=[0, 0, 2]), r"background: expected \[r, g, b\] with values in \[0, 1\], got \[0, 0, 2\]"),
         (dict(phenotype={"height": "tall"}), r"phenotype\.height: expected a finite number, got 'tall'"),
