@@ -303,6 +303,10 @@ class RefinerModel(_Model):
 
         feed = self._feed({"coarse": coarse, "reference": reference, "normal": normal}, check)
         out = self.session.run([REFINER_OUTPUT], feed)[0][:, 0]  # [B, 3, H, W], the coarse view
+        bad = int((~np.isfinite(out)).sum())
+        if bad:  # the model's fault, not the images'
+            raise ValueError(f"refiner: {self.path}: its output holds {bad} NaN or Inf value(s) on finite inputs "
+                             f"(a broken model: export it again from a finite checkpoint)")
         out = np.clip(out.transpose(0, 2, 3, 1), 0.0, 1.0).astype(np.float32, copy=False)
         return out[0] if singles["coarse"] else out
 

@@ -89,6 +89,22 @@ def test_refiner_refine_shapes_and_single_vs_batch(models):
     np.testing.assert_allclose(np.clip(raw[:, 0].transpose(0, 2, 3, 1), 0, 1), batch, atol=1e-6)
 
 
+def test_a_refiner_that_outputs_nan_is_named_as_the_fault(models):
+    # issue 41, U4: a NaN output was reported as the output image's fault
+    m = RefinerModel(models / "refiner.onnx")
+    real = m.session
+
+    class NaNSession:  # what a model exported from a diverged checkpoint returns
+        def run(self, names, feed):
+            out = real.run(names, feed)
+            out[0][0, 0, 1, 2, 3] = np.nan
+            return out
+
+    m.session = NaNSession()
+    with pytest.raises(ValueError, match=rf"^refiner: {models / 'refiner.onnx'}: its output holds 1 NaN or Inf value\(s\) on finite inputs"):
+        m.refine(images(1, seed=1)[0], images(1, seed=2)[0], images(1, seed=3)[0])
+
+
 def test_sessions_plan_no_memory_pattern(models):
     """A memory pattern would allocate a second set of activations on top of the arena's (see _session)."""
     for path, kind in ((models / "refiner.onnx", "refiner"), (models / "examiner.onnx", "examiner")):
