@@ -25,6 +25,7 @@ from trioman.toolkit.train.loop import render
 
 WHITE = torch.ones(3)
 PROTOCOLS = ("ours", "exavatar")
+POSES = ("run", "stored", "true")  # evaluate(poses=...): the run's corrected poses, the subject's stored, the truth
 # --protocol exavatar: ExAvatar's evaluation (ExAvatar_RELEASE avatar/tools/eval_neuman.py without --include_bkg;
 # the release holds no X-Humans evaluation script, so X-Humans is scored the same way): both images composited over
 # white outside the GT mask, full image, no crop, torchmetrics PSNR and SSIM (data range 1), LPIPS-AlexNet
@@ -52,13 +53,34 @@ def load_run(run: str | Path, checkpoint: str | Path | None = None) -> tuple[Gau
     return model, subject, cfg, int(state["step"])
 
 
+def run_poses(run: str | Path, subject: Subject, checkpoint: str | Path | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The subject's poses [F, J, 3] and roots [F, 3] as the run learnt to correct them (``--refine-poses``), from
+    its latest checkpoint unless one is named; None when the run learnt no corrections."""
+    from trioman.toolkit.train.pose_corrections import PoseCorrections
+
+    run = Path(run)
+    cfg = TrainConfig.from_dict(json.loads((run / "config.json").read_text())["train"])
+    if not cfg.refine_poses:
+        return None
+    ckpt = Path(checkpoint) if checkpoint else latest_checkpoint(run)
+    if ckpt is None:
+        raise FileNotFoundError(f"{run}: no finished checkpoint yet (train it, or resume with trioman train --resume)")
+    state = load_checkpoint(ckpt)
+    if "pose_corrections" not in state:
+        raise ValueError(f"{ckpt}: a run trained with refine_poses but its checkpoint holds no pose_corrections")
+    corrections = PoseCorrections(subject.sequence, subject.num_joints, cfg.pose_knot_every)
+    corrections.load_state_dict(state["pose_corrections"])
+    return corrections.all(subject.poses, subject.trans)
+
+
 @torch.no_grad()
 def render_frame(model: GaussianAvatar, subject: Subject, i: int, background: torch.Tensor = WHITE,
-                 true_pose: bool = False, pose_free: PoseFree | None = None) -> np.ndarray:
-    """The avatar (refined set) at frame i's pose (``true_pose``: the recorded ground truth, poses_true) and
-    camera, full resolution; ``pose_free``: ``model.pose_free()``, for many frames. -> [H, W, 3] float32."""
-    poses = subject.poses if not true_pose else subject.poses_true
-    out = model(torch.from_numpy(np.array(poses[i])), torch.from_numpy(np.array(subject.trans[i])), pose_free)
+                 poses: tuple[np.ndarray, np.ndarray] | None = None, pose_free: PoseFree | None = None) -> np.ndarray:
+    """The avatar (refined set) at frame i's pose and camera, full resolution; ``poses``: (poses [F, J, 3], roots
+    [F, 3]) to take frame i's from instead of the subject's stored ones; ``pose_free``: ``model.pose_free()``, for
+    many frames. -> [H, W, 3] float32."""
+    pose, trans = (subject.poses, subject.trans) if poses is None else poses
+    out = model(torch.from_numpy(np.array(pose[i])), torch.from_numpy(np.array(trans[i])), pose_free)
     img = render(out.refined, torch.from_numpy(np.array(subject.viewmat[i])), torch.from_numpy(np.array(subject.K[i])),
                  subject.width, subject.height, background)
     return img.clamp(0, 1).numpy()
@@ -74,19 +96,23 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
 @flush_denormals()
 def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
              progress: bool = True, grid_frames: int = 6, video: bool = True, protocol: str = "ours",
-             poses: str = "stored") -> dict:
+             poses: str = "run") -> dict:
     """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary.
 
-    ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours. ``poses="true"`` renders at
-    the subject's recorded ground-truth poses (synthetic subjects with --pose-noise), so the metric measures the
-    avatar and not the noise of the stored test poses."""
+    ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours. ``poses``: "run" renders at
+    the subject's stored poses as the run corrected them (``refine_poses``; the stored ones when it learnt none),
+    "stored" at the stored ones as they are, "true" at the recorded ground-truth poses (synthetic subjects with
+    --pose-noise), so the metric measures the avatar and not the noise of the stored test poses."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol: expected one of {list(PROTOCOLS)}, got {protocol!r}")
-    if poses not in ("stored", "true"):
-        raise ValueError(f"poses: expected 'stored' or 'true', got {poses!r}")
+    if poses not in POSES:
+        raise ValueError(f"poses: expected one of {list(POSES)}, got {poses!r}")
     model, subject, cfg, step = load_run(run)
     if poses == "true" and subject.poses_true is None:
         raise ValueError(f"poses: {subject.root} records no ground-truth poses (poses_true); evaluate at the stored poses")
+    at = {"run": run_poses(run, subject), "stored": None, "true": (subject.poses_true, subject.trans)}[poses]
+    if poses == "run":
+        poses = "stored" if at is None else "stored, corrected by the run"
     out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)
     idx = subject.indices(split)
@@ -97,7 +123,7 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
     with torch.no_grad():
         pose_free = model.pose_free()
     for i in tqdm(idx, desc=f"eval {split}", unit="frame", disable=None if progress else True):
-        pred = render_frame(model, subject, int(i), true_pose=poses == "true", pose_free=pose_free)
+        pred = render_frame(model, subject, int(i), poses=at, pose_free=pose_free)
         mask = subject.mask(int(i))
         gt = subject.image(int(i)) + (1 - mask)[..., None]  # premultiplied GT over white
         m = evaluate_pair(pred, gt, mask, lpips=lpips)

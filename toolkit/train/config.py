@@ -24,6 +24,7 @@ class LossWeights:
     lap_scale: float = 1.0  # Laplacian of the log-scale offsets
     delta_offset: float = 100.0  # L2 of the pose-dependent offsets
     delta_rgb: float = 0.1  # L2 of the pose-dependent colour logits (novel poses extrapolate them)
+    pose_correction: float = 1.0  # L2 of a frame's learnt pose correction (mean rad^2 per joint + root m^2)
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,9 @@ class TrainConfig:
     extra_frames: str | None = None  # a subject folder of pseudo-GT frames (trioman augment) sampled with the frames
     extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
     augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
+    refine_poses: bool = False  # learn corrections of the stored poses with the avatar (toolkit/train/pose_corrections.py)
+    pose_lr: float = 3e-3  # learning rate of the pose corrections (rad, m; same decay)
+    pose_knot_every: int = 4  # frames between the corrections' knots along a sequence
     checkpoint_every: int = 250
     max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient (skipped) that stop the run
     keep_checkpoints: int = 2
@@ -58,7 +62,9 @@ class TrainConfig:
         check_loop_settings(self)
         if self.frame_stride < 1:
             raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
-        for name in ("lr", "point_color_lr"):
+        if self.pose_knot_every < 1:
+            raise ValueError(f"pose_knot_every: must be >= 1, got {self.pose_knot_every}")
+        for name in ("lr", "point_color_lr", "pose_lr"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
         w = self.extra_weight

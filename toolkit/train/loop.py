@@ -26,6 +26,7 @@ from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.augmentation import Augmenter
 from trioman.toolkit.train.config import TrainConfig
 from trioman.toolkit.train.data import join_frames, load_frames
+from trioman.toolkit.train.pose_corrections import PoseCorrections
 from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
@@ -47,13 +48,16 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
     return lr
 
 
-def param_groups(model: GaussianAvatar, cfg: TrainConfig) -> list[dict]:
-    """Adam groups: the per-Gaussian colours at ``cfg.point_color_lr``, the rest at ``cfg.lr`` (both decay)."""
+def param_groups(model: GaussianAvatar, cfg: TrainConfig, corrections: PoseCorrections | None = None) -> list[dict]:
+    """Adam groups: the per-Gaussian colours at ``cfg.point_color_lr``, the pose corrections at ``cfg.pose_lr``,
+    the rest at ``cfg.lr`` (all decay)."""
     point = [p for n, p in model.named_parameters() if n == "point_rgb"]
     rest = [p for n, p in model.named_parameters() if n != "point_rgb"]
     groups = [{"params": rest, "lr_scale": 1.0}]
     if point:
         groups.append({"params": point, "lr_scale": cfg.point_color_lr / cfg.lr})
+    if corrections is not None:
+        groups.append({"params": list(corrections.parameters()), "lr_scale": cfg.pose_lr / cfg.lr})
     return groups
 
 
@@ -151,12 +155,14 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     subject = load_subject(subject_path)
     cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
     frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
+    own = len(frames)  # the subject's own frames come first in the set (pose corrections apply to them)
     if cfg.extra_frames is not None:  # uniform sampling over the union of both frame sets
         extra = _extra_subject(cfg, subject)
         frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
     model = GaussianAvatar(subject.body, cfg.avatar)
+    corrections = PoseCorrections(subject.sequence, subject.num_joints, cfg.pose_knot_every) if cfg.refine_poses else None
     augmenter = None if cfg.augment is None else Augmenter(cfg.augment, subject, frames, cfg.iterations, cfg.seed)
-    optimizer = torch.optim.Adam(param_groups(model, cfg), lr=cfg.lr, eps=1e-15)
+    optimizer = torch.optim.Adam(param_groups(model, cfg, corrections), lr=cfg.lr, eps=1e-15)
     rng = np.random.default_rng(cfg.seed)
     torch_gen = torch.Generator().manual_seed(cfg.seed)
     # The run's config was checked against its record (_prepare_run), not against the checkpoint's; a run not
@@ -170,6 +176,8 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         torch_gen.set_state(loop.resumed["torch_rng"])
         if augmenter is not None:
             augmenter.load_state_dict(loop.resumed["augment"], model)
+        if corrections is not None:
+            corrections.load_state_dict(loop.resumed["pose_corrections"])
     write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
     log = run / TRAIN_LOG
     _trim_log(log, loop.step)
@@ -182,6 +190,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
             "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
             "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
             **({} if augmenter is None else {"augment": augmenter.state_dict()}),
+            **({} if corrections is None else {"pose_corrections": corrections.state_dict()}),
         })
         if augmenter is not None:
             atomic_write_text(run / AUGMENT_JSON, json.dumps(augmenter.summary(loop.step), indent=2) + "\n")
@@ -201,8 +210,11 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
                 augmenter.rebuild(model)
             sample = augmenter.draw() if augmenter is not None and augmenter.use_pseudo(step) else None
             if sample is None:  # a real frame (also when the Examiner dropped every pool entry)
-                sample = frames.sample(int(rng.integers(len(frames))))
-            loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step)
+                k = int(rng.integers(len(frames)))
+                sample = frames.sample(k)
+                if corrections is not None and k < own:
+                    sample["frame"] = int(frames.indices[k])
+            loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step, corrections)
             done_here += 1
             seconds += time.perf_counter() - t0
             if np.isfinite(p):
@@ -217,15 +229,20 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
 
 
 def train_step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict, cfg: TrainConfig,
-          torch_gen: torch.Generator, lpips, guard: StepGuard, step: int) -> tuple[float, float]:
-    """One optimisation step on one frame (``FrameSet.sample`` or a pseudo-GT pool frame).
+               torch_gen: torch.Generator, lpips, guard: StepGuard, step: int,
+               corrections: PoseCorrections | None = None) -> tuple[float, float]:
+    """One optimisation step on one frame (``FrameSet.sample`` or a pseudo-GT pool frame). A sample naming its
+    subject ``frame`` is posed with that frame's learnt ``corrections`` (and their penalty is added).
 
     A non-finite loss or gradient skips the update and counts it in ``guard`` (which stops the run after
     ``cfg.max_skipped`` in a row). -> (loss, PSNR of the render) as floats.
     """
     bg = torch.rand(3, generator=torch_gen) if cfg.random_background else torch.ones(3)
     gt = sample["images"] + (1 - sample["masks"])[..., None] * bg  # premultiplied GT over the same colour
-    out = model(sample["poses"], sample["trans"])
+    pose, trans = sample["poses"], sample["trans"]
+    if corrections is not None and "frame" in sample:
+        pose, trans = corrections.apply(sample["frame"], pose, trans)
+    out = model(pose, trans)
     sets = [out.refined] + ([out.plain] if cfg.supervise_plain else [])
     height, width = gt.shape[:2]
     loss = torch.zeros(())
@@ -237,12 +254,15 @@ def train_step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: 
             loss = loss + sample["weight"] * photometric(img, gt, cfg, lpips, sample.get("pixel_weights"))
     with stage("loss"):
         loss = loss + regularisers(model, out, cfg)
+        if corrections is not None and "frame" in sample:
+            loss = loss + cfg.weights.pose_correction * corrections.penalty(sample["frame"])
     hint = f"(learning rate {learning_rate(cfg, step):.3g}; the last checkpoint is intact)"
     optimizer.zero_grad(set_to_none=True)
     if guard.finite_ok(loss, step, "loss", hint):
         with stage("backward"):
             loss.backward()
-        if guard.grads_ok(model.parameters(), step, hint):
+        params = [*model.parameters(), *([] if corrections is None else corrections.parameters())]
+        if guard.grads_ok(params, step, hint):
             with stage("optimizer"):
                 optimizer.step()
     with torch.no_grad():

@@ -13,9 +13,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", default="ours", choices=("ours", "exavatar"),
                         help="exavatar: also ExAvatar's numbers (composited over white outside the GT mask, full image, "
                              "PSNR/SSIM data range 1, LPIPS-AlexNet, mean over frames)")
-    parser.add_argument("--poses", default="stored", choices=("stored", "true"),
-                        help="render at the subject's stored poses (default) or at its recorded ground-truth poses "
-                             "(synthetic subjects made with --pose-noise: measures the avatar, not the pose noise)")
+    parser.add_argument("--poses", default="run", choices=("run", "stored", "true"),
+                        help="render at the subject's stored poses as the run corrected them (run, default: "
+                             "trioman train --refine-poses; the stored ones for a run without), at the stored poses as "
+                             "they are (stored), or at the recorded ground-truth poses (true: synthetic subjects made "
+                             "with --pose-noise; measures the avatar, not the pose noise)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -13,7 +13,7 @@ from typing import Mapping
 
 # Commands whose modules declare no FLAGS of their own: the parameters their library errors name -> the flags.
 UNDECLARED = {
-    "train": {"run": "--out", "image_scale": "--image-scale", "extra_frames": "--extra-frames",
+    "train": {"run": "--out", "image_scale": "--image-scale", "refine_poses": "--refine-poses", "extra_frames": "--extra-frames",
               "extra_weight": "--extra-weight", "resume": "--resume", "extend_iterations": "--extend-iterations",
               "augment": "--augment", "refiner": "--refiner", "examiner": "--examiner",
               "per_frame": "--per-frame", "threshold": "--threshold", "augment_start": "--augment-start",

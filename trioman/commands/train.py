@@ -16,6 +16,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also train on this subject folder of pseudo-GT frames (trioman augment --out DIR)")
     parser.add_argument("--extra-weight", type=float, default=None,
                         help="loss weight of the --extra-frames frames (default 1)")
+    parser.add_argument("--refine-poses", action="store_true",
+                        help="learn corrections of the subject's poses with the avatar (poses fitted to a video, "
+                             "trioman fit): the held-out frames take the corrections of the frames around them")
     aug = parser.add_argument_group("online augmentation (Generator -> Refiner -> Examiner during training)")
     aug.add_argument("--augment", choices=("coarse", "aligned", "refined", "examined", "truth", "truth_seen"), default=None,
                      nargs="?", const="aligned",
@@ -72,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
         overrides["iterations"] = args.iterations
     if args.image_scale is not None:
         overrides["image_scale"] = args.image_scale
+    if args.refine_poses:
+        overrides["refine_poses"] = True
     if args.extra_frames is not None:
         if not Path(args.extra_frames).is_dir():
             raise FileNotFoundError(f"--extra-frames: subject folder not found: {args.extra_frames}")
