@@ -20,6 +20,8 @@ def test_bench_fit_compares_a_fit_with_its_truth(tmp_path):
     md = fit_markdown(r)
     assert "| s1004 |" in md and "PA-MPJPE <= 40.0 mm" in md and "cost of fitting" in md
     assert row["cost_of_fitting_db"] == round(row["psnr_true_poses"] - row["psnr_fitted_poses"], 2)
+    assert row["cost_refined_db"] == round(row["psnr_true_poses"] - row["psnr_refined_poses"], 2)
+    assert "fitted, refined" in md
 
 
 @pytest.mark.parametrize("kwargs, field", [(dict(focal="guess"), "focal"), (dict(subjects=0), "subjects"),
