@@ -43,7 +43,8 @@ class TrainConfig:
     extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
     augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
     refine_poses: bool = False  # learn corrections of the stored poses with the avatar (toolkit/train/pose_corrections.py)
-    pose_lr: float = 3e-3  # learning rate of the pose corrections (rad, m; same decay)
+    pose_lr: float = 1e-3  # learning rate of the pose corrections (rad, m; same decay)
+    pose_start: float = 0.3  # share of the iterations before the corrections learn (an early avatar misleads them)
     pose_knot_every: int = 4  # frames between the corrections' knots along a sequence
     checkpoint_every: int = 250
     max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient (skipped) that stop the run
@@ -62,6 +63,8 @@ class TrainConfig:
         check_loop_settings(self)
         if self.frame_stride < 1:
             raise ValueError(f"frame_stride: must be >= 1, got {self.frame_stride}")
+        if not 0.0 <= self.pose_start < 1.0:
+            raise ValueError(f"pose_start: must lie in [0, 1), got {self.pose_start}")
         if self.pose_knot_every < 1:
             raise ValueError(f"pose_knot_every: must be >= 1, got {self.pose_knot_every}")
         for name in ("lr", "point_color_lr", "pose_lr"):

@@ -212,7 +212,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
             if sample is None:  # a real frame (also when the Examiner dropped every pool entry)
                 k = int(rng.integers(len(frames)))
                 sample = frames.sample(k)
-                if corrections is not None and k < own:
+                if corrections is not None and k < own and step >= cfg.pose_start * cfg.iterations:
                     sample["frame"] = int(frames.indices[k])
             loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step, corrections)
             done_here += 1

@@ -103,3 +103,9 @@ def test_command_line_refine_poses(noisy, tmp_path, capsys):
     assert main(["eval", str(tmp_path / "r"), "--no-video", "--quiet"]) == 0
     assert "PSNR" in capsys.readouterr().out
     assert load_checkpoint(list_checkpoints(tmp_path / "r")[-1])["pose_corrections"]["pose"].abs().max() > 0
+
+
+@pytest.mark.parametrize("field, value", [("pose_start", 1.0), ("pose_start", -0.1), ("pose_knot_every", 0), ("pose_lr", 0.0)])
+def test_bad_pose_settings_are_named(field, value):
+    with pytest.raises(ValueError, match=f"^{field}: "):
+        TrainConfig(**{field: value})
