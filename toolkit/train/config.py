@@ -43,7 +43,7 @@ class TrainConfig:
     extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
     augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
     refine_poses: bool = False  # learn corrections of the stored poses with the avatar (toolkit/train/pose_corrections.py)
-    pose_lr: float = 1e-3  # learning rate of the pose corrections (rad, m; same decay)
+    pose_lr: float = 3e-4  # learning rate of the pose corrections (rad, m; same decay)
     pose_start: float = 0.3  # share of the iterations before the corrections learn (an early avatar misleads them)
     pose_knot_every: int = 4  # frames between the corrections' knots along a sequence
     checkpoint_every: int = 250
