@@ -39,14 +39,15 @@ class PoseCorrections(nn.Module):
         self.pose = nn.Parameter(torch.zeros(knots, joints, 3))  # [K, J, 3] axis-angle offsets (rad)
         self.trans = nn.Parameter(torch.zeros(knots, 3))  # [K, 3] root offsets (m)
 
-    @property
-    def num_knots(self) -> int:
-        return len(self.pose)
-
-    def forward(self, frame: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Subject frame index -> (pose offset [J, 3], root offset [3])."""
+    def forward(self, frame: int | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Subject frame index (or [M] indices) -> (pose offset [(M,) J, 3], root offset [(M,) 3])."""
         lo, hi, w = self.lo[frame], self.hi[frame], self.w[frame]
-        return (1 - w) * self.pose[lo] + w * self.pose[hi], (1 - w) * self.trans[lo] + w * self.trans[hi]
+
+        def mix(knots: torch.Tensor) -> torch.Tensor:
+            weight = w.reshape(w.shape + (1,) * (knots.ndim - 1))
+            return (1 - weight) * knots[lo] + weight * knots[hi]
+
+        return mix(self.pose), mix(self.trans)
 
     def apply(self, frame: int, pose: torch.Tensor, trans: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The stored pose [J, 3] and root [3] of subject frame ``frame`` corrected."""
@@ -56,9 +57,7 @@ class PoseCorrections(nn.Module):
     @torch.no_grad()
     def all(self, poses: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every frame corrected: poses [F, J, 3], trans [F, 3] -> the same, float32."""
-        w = self.w[:, None, None]
-        d_pose = (1 - w) * self.pose[self.lo] + w * self.pose[self.hi]
-        d_trans = (1 - w[:, 0]) * self.trans[self.lo] + w[:, 0] * self.trans[self.hi]
+        d_pose, d_trans = self(torch.arange(len(self.w)))
         return ((torch.from_numpy(np.array(poses, np.float32)) + d_pose).numpy(),
                 (torch.from_numpy(np.array(trans, np.float32)) + d_trans).numpy())
 
