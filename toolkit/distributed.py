@@ -10,6 +10,7 @@ gradients, and rank 0 alone writes files.
 
 from __future__ import annotations
 
+import gc
 import os
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -93,6 +94,7 @@ def process_group(device: str = "cpu") -> Iterator[Ranks]:
     try:
         yield Ranks(ranks.rank, ranks.world_size, ranks.local_rank, backend)
     finally:
+        gc.collect()  # frees models (DDP) in reference cycles that would keep the group's threads alive to exit
         dist.destroy_process_group()
 
 
