@@ -81,10 +81,10 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
-        d = dict(d)
-        d["weights"] = LossWeights(**d.get("weights", {}))
-        avatar = dict(d.get("avatar", {}))
-        d["avatar"] = AvatarConfig(**avatar)
+        """The inverse of ``to_dict``; a key this version does not know is an error naming it."""
+        d = _known(cls, dict(d), "")
+        d["weights"] = LossWeights(**_known(LossWeights, dict(d.get("weights", {})), "weights."))
+        d["avatar"] = AvatarConfig(**_known(AvatarConfig, dict(d.get("avatar", {})), "avatar."))
         if d.get("augment") is not None:
             d["augment"] = AugmentConfig.from_dict(d["augment"])
         d["lr_decay_at"] = tuple(d.get("lr_decay_at", (0.75, 0.95)))
@@ -92,6 +92,13 @@ class TrainConfig:
 
     def digest(self) -> str:
         return hashlib.sha1(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
+
+
+def _known(cls: type, d: dict[str, Any], prefix: str) -> dict[str, Any]:
+    unknown = sorted(set(d) - {f.name for f in dataclasses.fields(cls)})
+    if unknown:
+        raise ValueError(f"{prefix}{unknown[0]}: not a training setting of this trioman version (a run of another one?)")
+    return d
 
 
 # quick: a CPU-sized strong baseline; no pose-dependent MLPs, whose offsets extrapolate to novel poses

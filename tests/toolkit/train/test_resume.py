@@ -105,3 +105,16 @@ def test_the_suggested_command_of_an_augmented_run_parses_back_to_its_config(tmp
     assert words[:2] == ["trioman", "train"]
     args = build_parser().parse_args(words[1:])  # argparse exits on a flag it refuses
     assert augment_config(args) == aug and args.resume
+
+
+@pytest.mark.parametrize("where", ["", "weights.", "avatar."])
+def test_a_setting_this_version_does_not_know_is_named_with_the_run_record(subject, tmp_path, capsys, where):
+    run = train(subject, tmp_path / "r", TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY), progress=False)
+    record = json.loads((run / "config.json").read_text())
+    (record["train"] if not where else record["train"][where[:-1]])["pose_align_steps"] = 20
+    (run / "config.json").write_text(json.dumps(record))
+    with pytest.raises(ValueError, match=rf"^{where}pose_align_steps: not a training setting of this trioman version"):
+        TrainConfig.from_dict(record["train"])
+    assert main(["eval", str(run), "--no-video", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "config.json: not a readable run record" in err and f"{where}pose_align_steps" in err
