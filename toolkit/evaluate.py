@@ -21,11 +21,14 @@ from trioman.toolkit.cpu import flush_denormals
 from trioman.toolkit.metrics import METRIC_KEYS, evaluate_pair
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint
 from trioman.toolkit.train.config import TrainConfig
-from trioman.toolkit.train.loop import render
+from trioman.toolkit.pose_refit import RefitSettings, refit_poses
+from trioman.toolkit.train.loop import photometric, render
+from trioman.toolkit.train.resume import read_record
 
 WHITE = torch.ones(3)
 PROTOCOLS = ("ours", "exavatar")
-POSES = ("run", "stored", "true")  # evaluate(poses=...): the run's corrected poses, the subject's stored, the truth
+POSES = ("run", "stored", "true", "optimised")  # evaluate(poses=...): the run's corrected poses, the subject's stored,
+# the truth, or the run's refitted to each frame's own pixels (toolkit/pose_refit.py)
 # --protocol exavatar: ExAvatar's evaluation (ExAvatar_RELEASE avatar/tools/eval_neuman.py without --include_bkg;
 # the release holds no X-Humans evaluation script, so X-Humans is scored the same way): both images composited over
 # white outside the GT mask, full image, no crop, torchmetrics PSNR and SSIM (data range 1), LPIPS-AlexNet
@@ -40,7 +43,7 @@ def load_run(run: str | Path, checkpoint: str | Path | None = None) -> tuple[Gau
     cfg_file = run / "config.json"
     if not cfg_file.is_file():
         raise FileNotFoundError(f"{run}: not a run folder (no config.json)")
-    saved = json.loads(cfg_file.read_text())
+    saved = read_record(run)
     cfg = TrainConfig.from_dict(saved["train"])
     ckpt = Path(checkpoint) if checkpoint else latest_checkpoint(run)
     if ckpt is None:
@@ -59,7 +62,7 @@ def run_poses(run: str | Path, subject: Subject, checkpoint: str | Path | None =
     from trioman.toolkit.train.pose_corrections import PoseCorrections
 
     run = Path(run)
-    cfg = TrainConfig.from_dict(json.loads((run / "config.json").read_text())["train"])
+    cfg = TrainConfig.from_dict(read_record(run)["train"])
     if not cfg.refine_poses:
         return None
     ckpt = Path(checkpoint) if checkpoint else latest_checkpoint(run)
@@ -96,13 +99,15 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
 @flush_denormals()
 def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
              progress: bool = True, grid_frames: int = 6, video: bool = True, protocol: str = "ours",
-             poses: str = "run") -> dict:
+             poses: str = "run", refit: RefitSettings | None = None) -> dict:
     """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary.
 
     ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours. ``poses``: "run" renders at
     the subject's stored poses as the run corrected them (``refine_poses``; the stored ones when it learnt none),
     "stored" at the stored ones as they are, "true" at the recorded ground-truth poses (synthetic subjects with
-    --pose-noise), so the metric measures the avatar and not the noise of the stored test poses."""
+    --pose-noise), so the metric measures the avatar and not the noise of the stored test poses, "optimised" at the
+    run's poses refitted to each frame's own pixels with the avatar frozen (``refit``; fitted videos, whose test
+    poses carry the fit's error)."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol: expected one of {list(PROTOCOLS)}, got {protocol!r}")
     if poses not in POSES:
@@ -110,9 +115,20 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
     model, subject, cfg, step = load_run(run)
     if poses == "true" and subject.poses_true is None:
         raise ValueError(f"poses: {subject.root} records no ground-truth poses (poses_true); evaluate at the stored poses")
-    at = {"run": run_poses(run, subject), "stored": None, "true": (subject.poses_true, subject.trans)}[poses]
+    corrected = run_poses(run, subject) if poses in ("run", "optimised") else None
+    at = {"run": corrected, "stored": None, "true": (subject.poses_true, subject.trans), "optimised": corrected}[poses]
     if poses == "run":
         poses = "stored" if at is None else "stored, corrected by the run"
+    elif poses == "optimised":
+        refit = refit or RefitSettings()
+        start = (subject.poses, subject.trans) if at is None else at
+        bar = tqdm(total=len(subject.indices(split)), desc=f"refit {split} poses", unit="frame",
+                   disable=None if progress else True)
+        at = refit_poses(model, subject, split, *start, lambda img, gt: photometric(img, gt, cfg), render, refit,
+                         lambda k: bar.update(k - bar.n))
+        bar.close()
+        poses = (f"{'stored' if corrected is None else 'stored, corrected by the run'}, refitted to each frame "
+                 f"({refit.steps} steps at {refit.scale:g} of the size)")
     out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)
     idx = subject.indices(split)

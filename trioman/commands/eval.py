@@ -13,11 +13,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", default="ours", choices=("ours", "exavatar"),
                         help="exavatar: also ExAvatar's numbers (composited over white outside the GT mask, full image, "
                              "PSNR/SSIM data range 1, LPIPS-AlexNet, mean over frames)")
-    parser.add_argument("--poses", default="run", choices=("run", "stored", "true"),
+    parser.add_argument("--poses", default="run", choices=("run", "stored", "true", "optimised"),
                         help="render at the subject's stored poses as the run corrected them (run, default: "
                              "trioman train --refine-poses; the stored ones for a run without), at the stored poses as "
                              "they are (stored), or at the recorded ground-truth poses (true: synthetic subjects made "
-                             "with --pose-noise; measures the avatar, not the pose noise)")
+                             "with --pose-noise; measures the avatar, not the pose noise), or at the run's poses refitted to each "
+                             "frame's own pixels with the avatar frozen (optimised: fitted videos; test-time pose "
+                             "optimisation, 20 Adam steps per frame at half size)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
