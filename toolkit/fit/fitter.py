@@ -68,6 +68,9 @@ class FitConfig:
     lr: float = 0.03
     w_silhouette: float = 0.5
     w_world: float = 0.5
+    # the world term's weight on the bones that end at a shoulder (the shoulder line, the torso's sides), which place
+    # the arms' roots; None: ``w_world`` (the arms themselves are not in the term, ``keypoints.LIMBS``)
+    w_world_shoulders: float | None = None
     w_smooth: float = 20.0
     w_pose: float = 0.002
     w_limits: float = 1.0
@@ -86,6 +89,8 @@ class FitConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+        if self.w_world_shoulders is not None and not (math.isfinite(self.w_world_shoulders) and self.w_world_shoulders >= 0):
+            raise ValueError(f"w_world_shoulders: must be a finite number >= 0 (or None: w_world), got {self.w_world_shoulders!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -252,6 +257,8 @@ class _Problem:
         self.world_conf = torch.as_tensor(obs.confidence, dtype=torch.float32)
         idx = {int(m): k for k, m in enumerate(corr.landmarks)}
         self.limbs = [(idx[a], idx[b], a, b) for a, b in LIMBS if a in idx and b in idx]
+        shoulders = cfg.w_world if cfg.w_world_shoulders is None else cfg.w_world_shoulders
+        self.limb_weights = [shoulders if {a, b} & {11, 12} else cfg.w_world for _, _, a, b in self.limbs]
         self.shoulders, self.hips = [idx[11], idx[12]], [idx[23], idx[24]]
         self.knee = [body.names.index(n) for n in ("lowerleg01.L", "lowerleg01.R")]
         self.elbow = [body.names.index(n) for n in ("lowerarm01.L", "lowerarm01.R")]
@@ -285,7 +292,7 @@ class _Problem:
         d = F.grid_sample(self.dist[frames], grid[:, None], align_corners=False, padding_mode="border")[:, 0, 0]
         long_side = max(self.obs.width, self.obs.height)
         terms["silhouette"] = cfg.w_silhouette * ((d * long_side / scale) ** 2).mean()
-        if cfg.w_world > 0:
+        if max(self.limb_weights, default=0.0) > 0:
             wl = []
             for i, j, a, b in self.limbs:
                 mp = self.world[frames, b] - self.world[frames, a]
@@ -293,7 +300,10 @@ class _Problem:
                 ok = (self.world_conf[frames, a] * self.world_conf[frames, b]) * (mp.norm(dim=-1) > 1e-6)
                 cos = F.cosine_similarity(model, mp, dim=-1, eps=1e-6)
                 wl.append(((1 - cos) * ok).sum() / ok.sum().clamp(min=1e-6))
-            terms["world"] = cfg.w_world * torch.stack(wl).mean()
+            if len(set(self.limb_weights)) == 1:  # one weight for every bone (the default): as it always was
+                terms["world"] = self.limb_weights[0] * torch.stack(wl).mean()
+            else:  # each bone at its weight, over all of them: a bone at 0 leaves the others' share as it was
+                terms["world"] = (torch.stack(wl) * torch.as_tensor(self.limb_weights)).mean()
         if smooth and len(frames) > 2:
             gap = torch.as_tensor(np.diff(self.obs.frame_index[frames.numpy()]))
             steady = (gap[1:] == gap[:-1]).float()  # equal spacing on both sides: a true neighbour triple

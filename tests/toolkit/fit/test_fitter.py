@@ -97,10 +97,48 @@ def test_procrustes_undoes_a_similarity():
 
 
 @pytest.mark.parametrize("kwargs, field", [(dict(focal=-1.0), "focal"), (dict(keyframes=0), "keyframes"),
-                                            (dict(all_iterations=1.5), "all_iterations")])
+                                            (dict(all_iterations=1.5), "all_iterations"),
+                                            (dict(w_world_shoulders=-0.1), "w_world_shoulders"),
+                                            (dict(w_world_shoulders=float("nan")), "w_world_shoulders")])
 def test_bad_fit_settings_are_named(kwargs, field):
     with pytest.raises(ValueError, match=f"^{field}: "):
         FitConfig(**kwargs)
+
+
+def test_the_shoulders_world_weight_changes_only_the_shoulder_bones(anny_body, monkeypatch):
+    """``w_world_shoulders`` weighs the world term's bones that end at a shoulder and no other: at 0 the term is the
+    other bones' alone (their share of the mean as before), at ``w_world`` (or None) it is the default's exactly."""
+    import torch
+
+    from trioman.toolkit.fit import fitter
+    from trioman.toolkit.fit.fitter import ACTIVE_JOINTS, _Body, _Problem
+
+    base = anny_body.to_skinned_mesh()
+    body = _Body(base, correspondence(base), 50, 0)
+    rng = np.random.default_rng(2)
+    N = 3
+    obs = Observations(rng.uniform(0, 60, (N, 33, 2)), rng.uniform(0.5, 1, (N, 33)), rng.normal(size=(N, 33, 3)),
+                       np.ones((N, 80, 60), np.float32), np.arange(N), 60, 80)
+    joints, points = body.rest(torch.full((6,), 0.5))
+    pose = torch.as_tensor(rng.normal(scale=0.3, size=(N, len(ACTIVE_JOINTS), 3)), dtype=torch.float32)
+    trans = torch.as_tensor([[0.0, 3.0, 0.0]] * N)
+    R, f, frames = fitter._camera(torch.tensor(0.0)), torch.tensor(70.0), torch.arange(N)
+
+    def world(cfg):
+        return float(_Problem(obs, body, cfg).loss(frames, joints, points, pose, trans, R, f, smooth=False)["world"])
+
+    default = world(FitConfig())
+    assert world(FitConfig(w_world_shoulders=0.5)) == default
+    off, double = world(FitConfig(w_world_shoulders=0.0)), world(FitConfig(w_world_shoulders=1.0))
+    assert off < default < double
+    rest = tuple(limb for limb in fitter.LIMBS if not set(limb) & {11, 12})
+    assert 0 < len(rest) < len(fitter.LIMBS)
+    monkeypatch.setattr(fitter, "LIMBS", rest)
+    alone = world(FitConfig())  # the other bones' mean, at w_world
+    np.testing.assert_allclose(off, alone * len(rest) / 8, rtol=1e-6)
+    np.testing.assert_allclose(double - off, 2 * (default - off), rtol=1e-5)  # linear in the shoulders' weight
+    assert "world" not in _Problem(obs, body, FitConfig(w_world=0.0)).loss(frames, joints, points, pose, trans, R, f,
+                                                                          smooth=False)
 
 
 def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body):
