@@ -54,6 +54,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from trioman.toolkit.train.augment_config import AugmentConfig
+
 if TYPE_CHECKING:
     from trioman.toolkit.train.config import TrainConfig
 
@@ -98,13 +100,14 @@ PAPER_TABLE2 = {"G": 31.2905, "GR_none": 30.9897, "GR_tex": 32.1369, "GR_tex+geo
 class AblationPlan:
     iterations: int = 600  # real-frame steps of every run
     seeds: int = 2
-    start: float = 0.4
-    share: float = 0.5
-    refresh: int = 50
-    pool: int = 8
-    weight: float = 1.0
+    # the online schedule and mask: AugmentConfig's own defaults (what `train --augment` runs)
+    start: float = AugmentConfig.start
+    share: float = AugmentConfig.share
+    refresh: int = AugmentConfig.refresh
+    pool: int = AugmentConfig.pool
+    weight: float = AugmentConfig.weight
     detail_sigma: float | None = None  # trains the GRd_tex+geo lever with this blur sigma (pixels)
-    mask: str = "carried"  # pseudo frames' mask (AugmentConfig.mask)
+    mask: str = AugmentConfig.mask
     coverage: float = 1.0  # share of a full turn the held-out subjects' training frames span (re-rendered when < 1)
     pose_noise: float = 0.0  # degrees of fitting noise on the held-out subjects' stored poses (re-rendered when > 0)
     reach: float = 1.0  # the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of their defaults
@@ -180,14 +183,14 @@ class AblationBenchConfig:
         check_path(self, "corpus")
         check_int(self, "size", 2)
         check_int(self, "heldout", 1)
-        for name in ("subjects", "refiner_steps", "examiner_steps", "batch", "crop", "iterations", "seeds",
-                     "augment_pool", "augment_refresh", "jobs"):
+        for name in ("subjects", "refiner_steps", "examiner_steps", "batch", "crop", "iterations", "seeds", "jobs"):
             check_int(self, name)
         if self.baseline_frames not in ("all", "subset"):
             raise ValueError(f"baseline_frames: ablation trains on one corpus variant, 'all' or 'subset', "
                              f"got {self.baseline_frames!r}")
         check_choice(self, "refiner_size", ("compact", "default"))
-        check_choice(self, "augment_mask", ("carried", "alpha"))
+        AugmentConfig(start=self.augment_start, refresh=self.augment_refresh, pool=self.augment_pool,
+                      mask=self.augment_mask)  # its checks, naming its fields (the same flags)
         for name in ("variants", "ablation_subjects"):
             if getattr(self, name) is not None:
                 check_names(self, name)
@@ -202,7 +205,6 @@ def _variant_runs(plan: AblationPlan) -> list[tuple[str, int]]:
 
 
 def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Path]):
-    from trioman.toolkit.train.augmentation import AugmentConfig
     from trioman.toolkit.train.config import preset
 
     mode, cond = next((m, c) for n, m, c, _ in ALL_VARIANTS if n == name)
@@ -219,8 +221,10 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
         paths["examiner"] = str(models["examiner"])
     if any(name == n for n, *_ in LEVERS):
         paths["detail_sigma"] = plan.detail_sigma
+    settings = {"keep_carried": False} if mode in ("refined", "examined") else {}  # the paper's rows keep nothing
+    settings.update(SETTINGS.get(name, {}))
     aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
-                        weight=plan.weight, mask=plan.mask, camera=plan.camera, **paths, **SETTINGS.get(name, {}))
+                        weight=plan.weight, mask=plan.mask, camera=plan.camera, **paths, **settings)
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
@@ -613,7 +617,7 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     from trioman.runtime.pseudo_gt import PseudoConfig, make_pseudo_frames
     from trioman.toolkit.evaluate import load_run
     from trioman.toolkit.synth.subject import TruthRenderer
-    from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
+    from trioman.toolkit.train.augmentation import render_candidate
     from trioman.toolkit.train.pseudo_models import load_pseudo_refiner
 
     subj = load_subject(subject)
@@ -735,7 +739,7 @@ def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, alig
     from trioman.runtime.generator import sample
     from trioman.runtime.metrics import psnr as psnr_db
     from trioman.runtime.pseudo_gt import PseudoConfig, make_pseudo_frames
-    from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
+    from trioman.toolkit.train.augmentation import render_candidate
     from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
 
     refiner = load_pseudo_refiner(str(models["refiner_warp+geo"]))

@@ -20,20 +20,10 @@ from trioman.runtime.aligned import Aligned, Aligner
 from trioman.runtime.generator import Candidate, keep_detail
 from trioman.runtime.models import ALIGNED_CONDITIONS
 from trioman.runtime.normal_map import body_normal_map
+from trioman.runtime.pseudo_kinds import KINDS, MASKS, STAGES
 from trioman.runtime.skeleton import SkinnedMesh
 
 __all__ = ["KINDS", "MASKS", "STAGES", "PseudoConfig", "Source", "PseudoFrames", "make_pseudo_frames", "needs_aligner"]
-
-# coarse: the avatar's render; aligned: the render with real pixels carried through the body mesh where
-# known; refined / examined: the Refiner's output (examined: the Examiner's pick); truth: the subject's own
-# renderer at the draw (synthetic subjects: the ceiling a perfect Refiner would reach); truth_seen: the truth
-# only where a training frame saw the surface (where real pixels were carried), ``unknown_weight`` elsewhere on
-# the body (the ceiling of pseudo-GT made from what the capture holds, with nothing invented).
-KINDS = ("coarse", "aligned", "refined", "examined", "truth", "truth_seen")
-# carried: the body mesh's coverage plus the source mask carried beyond it (runtime/aligned.py);
-# alpha: the render's own alpha (the paper's; teaches whatever the avatar renders off the body).
-MASKS = ("carried", "alpha")
-STAGES = ("generate", "render", "align", "normal", "refine", "examine")
 
 
 class RefinerLike(Protocol):

@@ -28,7 +28,7 @@ class CorpusConfig:
     style: str = "plain"  # the subjects' synth style (toolkit/synth/subject.py): "plain" or "realistic"
 
     def __post_init__(self) -> None:
-        from trioman.toolkit.synth.subject import STYLES
+        from trioman.toolkit.synth.config import STYLES
 
         if self.style not in STYLES:
             raise ValueError(f"style: unknown style {self.style!r}; one of {', '.join(STYLES)}")

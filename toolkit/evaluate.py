@@ -161,6 +161,36 @@ def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None
     return summary
 
 
+@flush_denormals()
+def comparison_grid(runs: dict[str, str | Path], split: str, out: str | Path, frames: int = 4) -> Path:
+    """One row per frame of ``frames`` evenly spaced ``split`` frames: the ground truth (over white), then each run's
+    render at its own poses (``runs``: label -> run folder, all on one subject), captioned with its masked PSNR.
+    Written as a PNG to ``out``; -> ``out``."""
+    loaded = {name: load_run(run) for name, run in runs.items()}
+    subjects = {str(Path(s.root).resolve()) for _, s, _, _ in loaded.values()}
+    if len(subjects) != 1:
+        raise ValueError(f"runs: must share one subject, got {sorted(subjects)}")
+    subject = next(iter(loaded.values()))[1]
+    idx = subject.indices(split)
+    if len(idx) == 0:
+        raise ValueError(f"split: subject {subject.root} has no {split!r} frames")
+    picks = idx[np.linspace(0, len(idx) - 1, min(frames, len(idx))).astype(int)]
+    poses = {name: run_poses(runs[name], subject) for name in runs}
+    images, labels = [], []
+    for i in picks.tolist():
+        mask = subject.mask(i)
+        gt = subject.image(i) + (1 - mask)[..., None]
+        images.append(gt)
+        labels.append(f"GT {subject.frame_names[i]}")
+        for name, (model, _, _, _) in loaded.items():
+            pred = render_frame(model, subject, i, poses=poses[name])
+            images.append(pred)
+            labels.append(f"{name} {evaluate_pair(pred, gt, mask)['psnr']:.2f} dB")
+    out = Path(out)
+    write_png(out, contact_sheet(images, labels, cols=1 + len(runs)))
+    return out
+
+
 def _summarise(rows: list[dict], split: str, step: int, cfg: TrainConfig, has_lpips: bool, protocol: str) -> dict:
     def mean(rs: list[dict], key: str):
         vals = [r[key] for r in rs if r[key] is not None]

@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("TRIOMAN_DEBUG"):
             raise
         message = describe_os_error(err) if isinstance(err, OSError) else str(err)
-        message = shown_message(err, message, command_flags(cmd.name, args._module))  # parameters -> flags
+        message = shown_message(err, message, command_flags(args._module))  # parameters -> flags
         print(f"trioman {cmd.name}: error: {message}", file=sys.stderr)
         return 1
     except RecursionError:

@@ -11,11 +11,13 @@ pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_avatar, load_subject  # noqa: E402
+from trioman.runtime.image_io import read_png  # noqa: E402
 
 STAGES = ("synth", "turntable", "train", "eval test", "eval train", "export avatar", "animate", "triplets", "refiner",
-          "examiner", "onnx export", "augment", "train augmented", "eval augmented")
+          "examiner", "onnx export", "augment", "train augmented", "eval augmented", "novel views")
 STAGE_LINE = re.compile(r"^demo: stage (.+?) +(\d+\.\d) s +peak RSS +(\d+) MiB(?: \(since start\))?$", re.M)
-PSNR_LINE = re.compile(r"^demo: test PSNR \(masked\): baseline (\S+) dB, augmented (\S+) dB \(\S+ dB\); report (\S+)$", re.M)
+PSNR_LINE = re.compile(r"^demo: test PSNR \(masked\): baseline (\S+) dB, augmented (\S+) dB \(\S+ dB, the same (\d+) "
+                       r"steps\); report (\S+)$", re.M)
 
 
 def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
@@ -41,9 +43,13 @@ def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
     train_cfg = json.loads((run_aug / "config.json").read_text())["train"]
     assert train_cfg["augment"]["mode"] == "aligned" and train_cfg["iterations"] == 30
     psnr = PSNR_LINE.search(printed)
-    assert psnr and psnr.group(3) == str(run_aug / "eval_test" / "report.md")
+    assert psnr and psnr.group(4) == str(run_aug / "eval_test" / "report.md") and psnr.group(3) == "30"
     baseline, augmented = float(psnr.group(1)), float(psnr.group(2))
     assert math.isfinite(baseline) and math.isfinite(augmented)
     for run, value in ((out / "run", baseline), (run_aug, augmented)):
         summary = json.loads((run / "eval_test" / "summary.json").read_text())
         assert summary["split"] == "test" and round(summary["mean"]["psnr"], 2) == value
+    assert f"novel views   {out / 'novel_views.png'}" in printed
+    grid = read_png(out / "novel_views.png")  # a row per test frame: GT | baseline | augmented, 64 px each
+    assert grid.shape[1] > 3 * 64 and grid.shape[0] > 4 * 64
+    assert load_subject(out / "subject").meta["generator"]["coverage"] == 0.33  # the regime the gain was measured in

@@ -6,7 +6,7 @@ import importlib
 import pytest
 
 from trioman.cli import COMMANDS, main
-from trioman.commands.flags import UNDECLARED, flag_message
+from trioman.commands.flags import command_flags, flag_message
 
 FLAGS = {"size": "--size", "per_frame": "--per-frame", "resume": "--resume", "overwrite": "--overwrite",
          "motion": "--motion", "subject": "SUBJECT"}
@@ -46,7 +46,7 @@ def _options(module) -> set[str]:
 def test_every_flag_a_command_shows_is_one_of_its_own():
     for cmd in COMMANDS:
         module = importlib.import_module(cmd.module)
-        flags = getattr(module, "FLAGS", None) or UNDECLARED.get(cmd.name, {})
+        flags = command_flags(module)
         assert set(flags.values()) <= _options(module), (cmd.name, set(flags.values()) - _options(module))
 
 
@@ -64,7 +64,13 @@ def test_every_flag_a_command_shows_is_one_of_its_own():
     (["train", "S", "--out", "O", "--augment", "refined"],
      "trioman train: error: --refiner: --augment refined needs a Refiner (a run folder, checkpoint or .onnx)"),
     (["train", "S", "--out", "O", "--augment", "aligned", "--threshold", "0.5"],
-     "trioman train: error: --threshold: needs --augment examined and a value in [0, 1], got 0.5"),
+     "trioman train: error: --threshold: needs --augment examined"),
+    (["train", "S", "--out", "O", "--augment", "--augment-start", "1"],
+     "trioman train: error: --augment-start: must lie in [0, 1), got 1.0"),
+    (["train", "S", "--out", "O", "--augment-pool", "4"],
+     "trioman train: error: --augment-pool: needs --augment"),
+    (["bench", "ablation", "--augment-pool", "0"],
+     "trioman bench: error: --augment-pool: must be an integer >= 1, got 0"),
     (["bench", "ablation", "--baseline-frames", "all,subset"],
      "trioman bench: error: --baseline-frames: ablation trains on one corpus variant, 'all' or 'subset', got 'all,subset'"),
 ])
@@ -93,9 +99,9 @@ def test_the_training_library_names_fields():
     from trioman.toolkit.distributed import check_device
     from trioman.toolkit.train.augmentation import AugmentConfig
 
-    with pytest.raises(ValueError, match=r"^refiner: `augment` refined needs a Refiner \(a run folder, checkpoint or \.onnx\)$"):
+    with pytest.raises(ValueError, match=r"^refiner: `mode` refined needs a Refiner \(a run folder, checkpoint or \.onnx\)$"):
         AugmentConfig(mode="refined")
-    with pytest.raises(ValueError, match=r"^threshold: needs `augment` examined"):
+    with pytest.raises(ValueError, match=r"^threshold: needs `mode` examined"):
         AugmentConfig(mode="aligned", threshold=0.5)
     with pytest.raises(ValueError, match=r"^device: expected one of"):
         check_device("tpu")

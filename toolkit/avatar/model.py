@@ -13,7 +13,6 @@ the body's skinning weights. Two sets come out of each forward pass, as in ExAva
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -24,6 +23,7 @@ from torch.autograd.function import once_differentiable
 
 from trioman.runtime.render.timing import stage
 from trioman.runtime.skeleton import SkinnedMesh
+from trioman.toolkit.avatar.config import AvatarConfig
 from trioman.toolkit.avatar.mesh_ops import avatar_points, knn, level_interpolation
 from trioman.toolkit.avatar.triplane import Triplane
 from trioman.toolkit.body.skinning import apply_transforms, skinning_transforms
@@ -31,35 +31,6 @@ from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matr
 
 # Joints whose rotations condition the pose-dependent MLPs: the body, not fingers, toes or eyes.
 _NOT_CONDITIONING = ("finger", "metacarpal", "toe", "eye", "root")
-
-
-@dataclass(frozen=True)
-class AvatarConfig:
-    subdivisions: int = 0  # midpoint subdivisions of the body mesh
-    keep: float = 1.0  # fraction of the points kept (seeded subset), for speed
-    triplane_channels: int = 32
-    triplane_res: int = 128
-    triplane_half_size: float = 1.0  # metres: the triplane covers a 2 m cube about the body centre
-    hidden: int = 128
-    anisotropic: bool = False
-    pose_dependent: bool = True
-    # Where the pose-dependent MLPs run: None, at every Gaussian; L, at the vertices of the mesh after L of the
-    # `subdivisions` midpoint steps (the triplane sampled there), their deltas carried to the Gaussians by the
-    # linear map that makes the Gaussians' canonical points from those vertices.
-    pose_subdivisions: int | None = None
-    knn: int = 6  # neighbours for the Laplacian regularisers and the initial scale
-    scale_init: float = 0.75  # initial Gaussian scale, in units of the mean neighbour distance
-    point_colors: bool = False  # a free colour logit per Gaussian on top of the triplane MLP's (detail below a cell)
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("triplane_channels", "triplane_res", "hidden", "knn"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        level = self.pose_subdivisions
-        if level is not None and (isinstance(level, bool) or not isinstance(level, int) or not 0 <= level <= self.subdivisions):
-            raise ValueError(f"pose_subdivisions: must be None or an integer in [0, subdivisions = {self.subdivisions}], "
-                             f"got {level!r}")
 
 
 class Gaussians(NamedTuple):
@@ -140,9 +111,9 @@ class _SparseProduct(torch.autograd.Function):
 
 
 class GaussianAvatar(nn.Module):
-    def __init__(self, mesh: SkinnedMesh, cfg: AvatarConfig = AvatarConfig()):
+    def __init__(self, mesh: SkinnedMesh, cfg: AvatarConfig | None = None):
         super().__init__()
-        self.cfg = cfg
+        self.cfg = cfg = cfg if cfg is not None else AvatarConfig()
         points, skin_idx, skin_w = avatar_points(mesh, cfg.subdivisions, cfg.keep, cfg.seed)
         nbr, dist = knn(points, cfg.knn)
         sk = mesh.skeleton

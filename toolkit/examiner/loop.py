@@ -18,7 +18,8 @@ from trioman.toolkit.distributed import MIXED_PRECISION, data_parallel
 from trioman.toolkit.examiner.loss import examiner_loss
 from trioman.toolkit.examiner.model import Examiner, ExaminerConfig, PatchLogits
 from trioman.toolkit.examiner.pairs import PAIRINGS, ExaminerBatch, sample_pairs
-from trioman.toolkit.loops.checkpoint import SELECTED, check_loop_settings, load_checkpoint, save_atomic
+from trioman.toolkit.loops.checkpoint import SELECTED, load_checkpoint, save_atomic
+from trioman.toolkit.loops.settings import check_loop_settings
 from trioman.toolkit.loops.model_run import ModelRun
 
 

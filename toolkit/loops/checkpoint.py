@@ -56,16 +56,6 @@ def config_differences(run_config: dict[str, Any], config: dict[str, Any]) -> di
             if name not in run_config or name not in config or run_config[name] != config[name]}
 
 
-def check_loop_settings(cfg: Any) -> None:
-    """Raise ValueError naming the field when a training loop's config has ``checkpoint_every``,
-    ``keep_checkpoints`` or ``max_skipped`` (consecutive non-finite steps that stop the run) that is not a
-    positive integer."""
-    for name in ("checkpoint_every", "keep_checkpoints", "max_skipped"):
-        v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise ValueError(f"{name}: must be a positive integer, got {v!r}")
-
-
 def check_config(checkpoint: str | os.PathLike, run_config: dict[str, Any], config: dict[str, Any], what: str) -> None:
     """Raise ConfigMismatch naming the fields in which the run's model config differs from ``config``."""
     if run_config != config:

@@ -18,7 +18,8 @@ import torch
 from torch import nn
 
 from trioman.toolkit.distributed import MIXED_PRECISION, data_parallel
-from trioman.toolkit.loops.checkpoint import check_loop_settings, load_checkpoint
+from trioman.toolkit.loops.checkpoint import load_checkpoint
+from trioman.toolkit.loops.settings import check_loop_settings
 from trioman.toolkit.loops.guard import StepGuard
 from trioman.toolkit.loops.model_run import ModelRun
 from trioman.toolkit.refiner.backbones import create_refiner

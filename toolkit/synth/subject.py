@@ -37,95 +37,14 @@ from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.body.anny_model import PHENOTYPE_LABELS
 from trioman.toolkit.body.registry import create_body_model
-from trioman.toolkit.synth.garments import BOTTOMS, HAIRSTYLES, OUTERWEAR, TOPS, Outfit
 from trioman.toolkit.synth.realistic import Scene, handheld
 from trioman.toolkit.synth.shading import render_textured
+from trioman.toolkit.synth.config import TEST_VIEWS, SynthConfig
 from trioman.toolkit.synth.texture import bake_texture
 
-# Novel views for the test motions: (azimuth deg, elevation deg, distance m, body yaw rad).
-TEST_VIEWS = {
-    "arms_raised": (30.0, 25.0, 3.3, 0.5),
-    "squat": (-60.0, -10.0, 2.9, -2.2),
-    "step": (100.0, 18.0, 3.2, 2.7),
-    "wave": (-25.0, 35.0, 3.4, -0.7),
-}
 TRAIN_VIEW = (0.0, 5.0, 3.0)  # azimuth deg, elevation deg, distance m
-STYLES = ("plain", "realistic")
-CAPTURES = ("turn", "steps")
 STEPS_REACH = 0.35  # m either side of the centre a "steps" capture walks
 VIDEO_FPS = 30.0
-
-
-@dataclass(frozen=True)
-class SynthConfig:
-    seed: int = 0
-    size: int = 256  # square image side in pixels
-    frames: int = 120  # total frames: training turn + test motions
-    test_fraction: float = 0.2
-    pose_noise_deg: float = 0.0  # std of the noise added to the stored (fitted) poses
-    fill: float = 0.75  # fraction of the image height the rest body spans from the training camera
-    texture_size: int = 1024
-    supersample: int = 2
-    body_model: str = "anny"
-    coverage: float = 1.0  # fraction of a full turn the training frames span, from facing the camera (1: all round)
-    style: str = "plain"  # "plain" (painted clothes, bald, on black) or "realistic" (module docstring)
-    capture: str = "turn"  # "turn" in place, or "steps": a few steps across the view, then the turn
-    aspect: float = 1.0  # width / height; ``size`` is the long side (0.5625: a portrait phone video)
-    handheld_deg: float = 0.3  # realistic style: std of the phone's rotation jitter in degrees (0: a tripod)
-    outfit: str = ""  # realistic style: "top,bottom,hair,outer" (garments.TOPS, ...); empty: drawn from the seed
-
-    def __post_init__(self) -> None:
-        if self.size < 16:
-            raise ValueError(f"size: must be >= 16 pixels, got {self.size}")
-        if self.style not in STYLES:
-            raise ValueError(f"style: unknown style {self.style!r}; one of {', '.join(STYLES)}")
-        if self.capture not in CAPTURES:
-            raise ValueError(f"capture: unknown capture {self.capture!r}; one of {', '.join(CAPTURES)}")
-        if not (isinstance(self.aspect, (int, float)) and 0.25 <= self.aspect <= 4.0):
-            raise ValueError(f"aspect: must lie in [0.25, 4] (width / height), got {self.aspect!r}")
-        if min(self.width, self.height) < 16:
-            raise ValueError(f"aspect: the short side would be {min(self.width, self.height)} pixels (< 16) at size {self.size}")
-        if not (isinstance(self.handheld_deg, (int, float)) and 0.0 <= self.handheld_deg <= 5.0):
-            raise ValueError(f"handheld_deg: must lie in [0, 5] degrees, got {self.handheld_deg!r}")
-        if self.style == "plain" and self.outfit:
-            raise ValueError(f"outfit: only the realistic style wears an outfit, got {self.outfit!r} with style 'plain'")
-        if self.outfit:
-            parts = self.outfit.split(",")
-            if len(parts) != 4:
-                raise ValueError(f"outfit: expected 'top,bottom,hair,outer' (tops {'/'.join(TOPS)}; bottoms {'/'.join(BOTTOMS)}; "
-                                 f"hair {'/'.join(HAIRSTYLES)}; outer {'/'.join(OUTERWEAR)}), got {self.outfit!r}")
-            try:
-                Outfit(*parts)
-            except ValueError as exc:
-                raise ValueError(f"outfit: {exc}") from None
-        if self.frames < 2 + len(TEST_VIEWS):
-            raise ValueError(f"frames: need at least {2 + len(TEST_VIEWS)} (training + one per test motion), got {self.frames}")
-        if not 0.0 < self.test_fraction < 1.0:
-            raise ValueError(f"test_fraction: must lie in (0, 1), got {self.test_fraction}")
-        if not (0.0 <= self.pose_noise_deg <= 90.0):
-            raise ValueError(f"pose_noise_deg: must lie in [0, 90] degrees, got {self.pose_noise_deg}")
-        if not 0.1 <= self.fill <= 0.95:
-            raise ValueError(f"fill: must lie in [0.1, 0.95], got {self.fill}")
-        if not (isinstance(self.coverage, (int, float)) and 0.0 < self.coverage <= 1.0):
-            raise ValueError(f"coverage: must lie in (0, 1] (fraction of a full turn), got {self.coverage!r}")
-        if self.supersample < 1 or self.texture_size < 64:
-            raise ValueError(f"supersample/texture_size: got {self.supersample}/{self.texture_size}")
-
-    @property
-    def num_test(self) -> int:
-        return max(len(TEST_VIEWS), int(round(self.frames * self.test_fraction)))
-
-    @property
-    def width(self) -> int:
-        return self.size if self.aspect >= 1 else 2 * int(round(self.size * self.aspect / 2))
-
-    @property
-    def height(self) -> int:
-        return self.size if self.aspect <= 1 else 2 * int(round(self.size / self.aspect / 2))
-
-    def scene_outfit(self) -> Outfit | None:
-        """The outfit asked for, or None (drawn from the seed)."""
-        return Outfit(*self.outfit.split(",")) if self.outfit else None
 
 
 def phenotype_from_seed(seed: int) -> dict[str, float]:

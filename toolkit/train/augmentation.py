@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -25,113 +23,12 @@ import torch
 
 from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.formats import Subject
-from trioman.runtime.generator import CameraDelta, Candidate, GeneratorConfig, sample
-from trioman.runtime.pseudo_gt import KINDS, MASKS, STAGES, PseudoConfig, Source, make_pseudo_frames, needs_aligner
+from trioman.runtime.generator import CameraDelta, Candidate, sample
+from trioman.runtime.pseudo_gt import STAGES, Source, make_pseudo_frames, needs_aligner
 from trioman.toolkit.avatar.model import GaussianAvatar, PoseFree
 from trioman.toolkit.render import rasterize
+from trioman.toolkit.train.augment_config import AugmentConfig
 from trioman.toolkit.train.data import FrameSet
-
-MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_gt.py)
-
-
-@dataclass(frozen=True)
-class AugmentConfig:
-    mode: str = "coarse"  # one of MODES; "truth" / "truth_seen" (synthetic subjects only): ceilings, for benchmarks
-    mask: str = "carried"  # pseudo frame mask: "carried" (body mesh + source mask carried to the draw) or "alpha" (render's)
-    unknown_weight: float = 0.0  # modes "aligned", "truth_seen": loss weight of body pixels no real pixel reached
-    align_sources: int = 3  # training frames whose pixels the aligned reference fuses per draw
-    align_texture: int = 0  # > 0: the aligned reference's colour from a texture of this side fused from every
-    # training frame, where its texels were seen (runtime/texture_fusion.py); 0: carried pixels only
-    refiner: str | None = None  # run folder, checkpoint or .onnx (modes refined, examined)
-    examiner: str | None = None  # run folder, checkpoint or .onnx (mode examined)
-    per_frame: int | None = None  # Generator candidates per source frame; None: 2 with an Examiner, else 1
-    threshold: float | None = None  # Examiner score below which the best candidate is dropped
-    start: float = 0.4  # fraction of the iterations trained on real frames only (warm-up)
-    refresh: int = 100  # steps between rebuilds of the pseudo-GT pool
-    pool: int = 8  # pseudo-GT frames per rebuild
-    share: float = 0.5  # probability that a step after the warm-up trains on a pool frame
-    weight: float = 1.0  # photometric loss weight of a pseudo-GT frame
-    detail_sigma: float = 0.0  # > 0: keep only the Refiner's detail, its change minus that change blurred by this
-    # many pixels (runtime.generator.keep_detail); the avatar then never learns the Refiner's colour shift, which the
-    # online loop would compound (each rebuild refines renders of an avatar trained on the previous refinements)
-    keep_carried: bool = False  # modes refined / examined: carried real pixels stay, the Refiner fills the rest
-    pose_sigma: dict[str, float] = field(default_factory=dict)  # Generator pose sigmas per group (defaults otherwise)
-    camera: tuple[float, float, float] | None = None  # Generator (azimuth, elevation, log-distance) sigmas; None: defaults
-
-    def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ValueError(f"augment: expected one of {MODES}, got {self.mode!r}")
-        needs_refiner = self.mode in ("refined", "examined")
-        if needs_refiner and not self.refiner:
-            raise ValueError(f"refiner: `augment` {self.mode} needs a Refiner (a run folder, checkpoint or .onnx)")
-        if self.mode == "examined" and not self.examiner:
-            raise ValueError("examiner: `augment` examined needs an Examiner (a run folder, checkpoint or .onnx)")
-        if self.mode != "examined" and self.examiner:
-            raise ValueError(f"examiner: `augment` {self.mode} does not use an Examiner (use `augment` examined)")
-        if not needs_refiner and self.refiner:
-            raise ValueError(f"refiner: `augment` {self.mode} does not use a Refiner (use `augment` refined or examined)")
-        if self.per_frame is not None and (isinstance(self.per_frame, bool) or not isinstance(self.per_frame, int)
-                                           or self.per_frame < 1):
-            raise ValueError(f"per_frame: must be an integer >= 1, got {self.per_frame!r}")
-        if self.mode != "examined" and (self.per_frame or 1) != 1:
-            raise ValueError(f"per_frame: {self.per_frame} candidates need an Examiner to choose (`augment` examined)")
-        if self.threshold is not None and (self.mode != "examined" or not 0.0 <= self.threshold <= 1.0):
-            raise ValueError(f"threshold: needs `augment` examined and a value in [0, 1], got {self.threshold!r}")
-        if not 0.0 <= self.start < 1.0:
-            raise ValueError(f"augment_start: must lie in [0, 1), got {self.start!r}")
-        for name in ("refresh", "pool"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"augment_{name}: must be an integer >= 1, got {v!r}")
-        if not 0.0 < self.share <= 1.0:
-            raise ValueError(f"augment_share: must lie in (0, 1], got {self.share!r}")
-        if not (math.isfinite(self.weight) and self.weight >= 0):
-            raise ValueError(f"augment_weight: must be a finite number >= 0, got {self.weight!r}")
-        if not (isinstance(self.detail_sigma, (int, float)) and math.isfinite(self.detail_sigma) and self.detail_sigma >= 0):
-            raise ValueError(f"augment_detail_sigma: must be a finite number >= 0 (pixels), got {self.detail_sigma!r}")
-        if self.detail_sigma > 0 and not needs_refiner:
-            raise ValueError("augment_detail_sigma: needs a Refiner (`augment` refined or examined)")
-        if self.keep_carried and not needs_refiner:
-            raise ValueError("augment_keep_carried: needs a Refiner to fill what was not carried (`augment` refined or examined)")
-        if isinstance(self.align_sources, bool) or not isinstance(self.align_sources, int) or self.align_sources < 1:
-            raise ValueError(f"augment_align_sources: must be an integer >= 1, got {self.align_sources!r}")
-        t = self.align_texture
-        if isinstance(t, bool) or not isinstance(t, int) or not (t == 0 or 16 <= t <= 4096):
-            raise ValueError(f"augment_align_texture: 0 (off) or the fused texture's side in texels, 16 to 4096, got {t!r}")
-        if t and self.mode not in ("aligned", "refined", "examined"):
-            raise ValueError(f"augment_align_texture: `augment` {self.mode} takes no colour from the aligned reference "
-                             "(use `augment` aligned, refined or examined)")
-        if self.mask not in MASKS:
-            raise ValueError(f"augment_mask: expected one of {MASKS}, got {self.mask!r}")
-        self.pseudo()  # validates the mask and weights
-        self.generator()  # validates the sigmas
-
-    @property
-    def candidates(self) -> int:
-        return self.per_frame or (2 if self.mode == "examined" else 1)
-
-    def generator(self) -> GeneratorConfig:
-        kw: dict[str, Any] = {"pose_sigma": dict(self.pose_sigma)}
-        if self.camera is not None:
-            kw.update(azimuth_sigma=self.camera[0], elevation_sigma=self.camera[1], distance_sigma=self.camera[2])
-        return GeneratorConfig(**kw)
-
-    def pseudo(self) -> PseudoConfig:
-        return PseudoConfig(kind=self.mode, mask=self.mask, unknown_weight=self.unknown_weight,
-                            detail_sigma=self.detail_sigma, threshold=self.threshold,
-                            keep_carried=self.keep_carried)
-
-    def start_step(self, iterations: int) -> int:
-        return int(round(self.start * iterations))
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "AugmentConfig":
-        d = dict(d)
-        d.setdefault("mask", "alpha")  # runs recorded before the mask was a setting used the render's alpha
-        if d.get("camera") is not None:
-            d["camera"] = tuple(d["camera"])
-        return cls(**d)
-
 
 class Augmenter:
     """The pseudo-GT pool of one training run: rebuilt on schedule, drawn from, saved with checkpoints."""

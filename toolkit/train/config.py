@@ -8,9 +8,10 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-from trioman.toolkit.avatar.model import AvatarConfig
-from trioman.toolkit.loops.checkpoint import check_loop_settings
-from trioman.toolkit.train.augmentation import AugmentConfig
+from trioman.runtime.options import check_options, integer, number, option
+from trioman.toolkit.avatar.config import AvatarConfig
+from trioman.toolkit.loops.settings import check_loop_settings
+from trioman.toolkit.train.augment_config import AugmentConfig
 
 
 @dataclass(frozen=True)
@@ -29,35 +30,37 @@ class LossWeights:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    preset: str = "quick"
-    iterations: int = 1500
+    preset: str = option("quick", choices=("quick", "full"), help="training preset")
+    iterations: int = option(1500, check=integer(1), default_text="the preset's: quick 1000, full 6000",
+                             help="optimisation steps")
     lr: float = 1e-3
     lr_decay_at: tuple[float, float] = (0.75, 0.95)  # x0.1 then x0.01 at these fractions of the run
     point_color_lr: float = 1e-2  # learning rate of the per-Gaussian colours (avatar.point_colors), same decay
-    image_scale: float = 1.0  # train on images resized by this factor (K scaled to match)
+    image_scale: float = option(1.0, check=number(0.05, 1), help="train on images resized by this factor, in [0.05, 1] "
+                                "(the intrinsics scaled to match)")
     supervise_plain: bool = False  # also render and supervise the pose-independent set (ExAvatar does)
     frames: str = "train"  # the frames trained on: "train" (the train split) or "all" (every frame)
     frame_stride: int = 1  # keep every frame_stride-th of those frames (a subset, for coarse-render corpora)
     random_background: bool = True
-    extra_frames: str | None = None  # a subject folder of pseudo-GT frames (trioman augment) sampled with the frames
-    extra_weight: float = 1.0  # photometric loss weight of an extra (pseudo-GT) frame
+    extra_frames: str | None = option(None, metavar="DIR", help="also train on this subject folder of pseudo-GT "
+                                      "frames (trioman augment --out DIR), sampled with the subject's frames")
+    extra_weight: float = option(1.0, check=number(0), help="loss weight of the --extra-frames frames")
     augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
-    refine_poses: bool = False  # learn corrections of the stored poses with the avatar (toolkit/train/pose_corrections.py)
+    refine_poses: bool = option(False, help="learn corrections of the subject's poses with the avatar (poses fitted to a "
+                                "video, trioman fit; toolkit/train/pose_corrections.py): the held-out frames take the "
+                                "corrections of the frames around them")
     pose_lr: float = 3e-4  # learning rate of the pose corrections (rad, m; same decay)
     pose_start: float = 0.3  # share of the iterations before the corrections learn (an early avatar misleads them)
     pose_knot_every: int = 4  # frames between the corrections' knots along a sequence
     checkpoint_every: int = 250
     max_skipped: int = 10  # consecutive steps with a non-finite loss or gradient (skipped) that stop the run
     keep_checkpoints: int = 2
-    seed: int = 0
+    seed: int = option(0, check=integer(), help="the run's seed")
     weights: LossWeights = field(default_factory=LossWeights)
     avatar: AvatarConfig = field(default_factory=AvatarConfig)
 
     def __post_init__(self) -> None:
-        if self.iterations < 1:
-            raise ValueError(f"iterations: must be >= 1, got {self.iterations}")
-        if not 0.05 <= self.image_scale <= 1.0:
-            raise ValueError(f"image_scale: must lie in [0.05, 1], got {self.image_scale}")
+        check_options(self)
         if self.frames not in ("train", "all"):
             raise ValueError(f"frames: expected 'train' or 'all', got {self.frames!r}")
         check_loop_settings(self)
@@ -70,9 +73,6 @@ class TrainConfig:
         for name in ("lr", "point_color_lr", "pose_lr"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
-        w = self.extra_weight
-        if isinstance(w, bool) or not (isinstance(w, (int, float)) and 0 <= w < float("inf")):
-            raise ValueError(f"extra_weight: must be a finite number >= 0, got {self.extra_weight!r}")
         if self.extra_frames is not None and (not isinstance(self.extra_frames, str) or not self.extra_frames):
             raise ValueError(f"extra_frames: expected a subject folder path or None, got {self.extra_frames!r}")
 

@@ -26,6 +26,8 @@ from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.subject import BODY_NPZ, FRAMES_NPZ, SUBJECT_JSON
 from trioman.runtime.image_io import atomic_write_text
+from trioman.runtime.options import declared, flags
+from trioman.toolkit.train.augment_config import AugmentConfig
 from trioman.toolkit.train.config import PRESETS, TrainConfig
 
 CONFIG_JSON = "config.json"
@@ -97,14 +99,20 @@ def config_differences(old: TrainConfig, new: TrainConfig) -> list[str]:
     return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 
-def _flag(field: str) -> str:
-    return "--" + field.replace("_", "-")
-
-
-# AugmentConfig fields whose flag is not "--augment-<field>" (trioman/commands/train.py).
-_AUGMENT_OWN_FLAGS = {"refiner": "--refiner", "examiner": "--examiner", "per_frame": "--per-frame",
-                      "threshold": "--threshold", "align_sources": "--augment-sources",
-                      "align_texture": "--augment-texture"}
+def _words(saved: Any, default: Any, names: list[str], always: tuple[str, ...] = ()) -> list[str]:
+    """The flags (trioman/options.py) that give ``saved``'s fields ``names`` where they differ from ``default``'s
+    (``always``: whenever set)."""
+    flag = flags(type(saved))
+    words: list[str] = []
+    for name in names:
+        value = getattr(saved, name)
+        if value is None or (name not in always and value == getattr(default, name)):
+            continue
+        if isinstance(value, bool):
+            words.append(flag[name] if value else "--no-" + flag[name][2:])
+        else:
+            words += [flag[name], str(value)]
+    return words
 
 
 def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = None) -> str:
@@ -119,19 +127,13 @@ def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = No
         words += ["--preset", saved.preset]
     if first != base.iterations:
         words += ["--iterations", str(first)]
-    for name in ("image_scale", "seed", "extra_frames", "extra_weight"):
-        if getattr(saved, name) != getattr(base, name):
-            words += [_flag(name), str(getattr(saved, name))]
+    words += _words(saved, base, ["image_scale", "seed", "extra_frames", "extra_weight", "refine_poses"])
     if saved.augment is not None:
         aug = saved.augment
         words += ["--augment", aug.mode]
-        # the command's defaults: keep_carried is on wherever there is a Refiner (trioman/commands/train.py)
-        default = dataclasses.asdict(type(aug)(mode=aug.mode, refiner=aug.refiner, examiner=aug.examiner,
-                                               keep_carried=aug.mode in ("refined", "examined")))
-        for name, value in dataclasses.asdict(aug).items():
-            if name != "mode" and value is not None and (name in ("refiner", "examiner") or value != default[name]):
-                flag = _AUGMENT_OWN_FLAGS.get(name, "--augment-" + name.replace("_", "-"))
-                words += ([flag] if value else ["--no-" + flag[2:]]) if isinstance(value, bool) else [flag, str(value)]
+        default = AugmentConfig(mode=aug.mode, refiner=aug.refiner, examiner=aug.examiner)
+        words += _words(aug, default, [f.name for f, _ in declared(AugmentConfig) if f.name != "mode"],
+                        always=("refiner", "examiner"))
     words.append("--resume")
     target = extend_to if extend_to is not None else (saved.iterations if extensions else None)
     if target is not None:

@@ -25,7 +25,7 @@ TARGETS = {
 }
 # The configs' fields the library's errors name: each the option of its name (``training``: --no-training) -> the flags
 # as typed (trioman/commands/flags.py).
-FLAGS = {name: "--" + name.replace("_", "-") for name in (
+_FIELD_FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "out", "size", "frames", "seed", "presets", "full_iterations", "eval_every", "avatar_run", "corpus", "subjects",
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
@@ -33,7 +33,23 @@ FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "variants", "ablation_subjects", "jobs", "style", "aspect", "focal", "avatar_iterations")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
+# AugmentConfig's options that bench ablation takes (its config's fields augment_<name>: the same flags).
+ABLATION_AUGMENT = ("start", "refresh", "pool", "mask")
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+    from trioman.toolkit.train.augment_config import AugmentConfig
+
+    augment = {name: flag for name, flag in option_flags(AugmentConfig).items() if name in ABLATION_AUGMENT}
+    return _FIELD_FLAGS | augment
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+    from trioman.toolkit.train.augment_config import AugmentConfig
+
     parser.add_argument("target", choices=tuple(TARGETS), help="what to benchmark")
     parser.add_argument("--out", default="out/bench", help="report folder (default out/bench)")
     parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64; fit: the long side, 540)")
@@ -91,11 +107,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reach", type=float, default=None, metavar="FACTOR",
                         help="ablation: the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of "
                              "their defaults (default 1)")
-    parser.add_argument("--augment-start", type=float, default=None, help="ablation: warm-up share of an augmented run")
-    parser.add_argument("--augment-pool", type=int, default=None, help="ablation: pseudo-GT frames per pool rebuild")
-    parser.add_argument("--augment-refresh", type=int, default=None, help="ablation: steps between pool rebuilds")
-    parser.add_argument("--augment-mask", choices=("carried", "alpha"), default=None,
-                        help="ablation: the pseudo frames' mask (default carried)")
+    add_options(parser, AugmentConfig, ABLATION_AUGMENT, prefix="ablation: ")
     parser.add_argument("--variants", default=None, metavar="NAMES",
                         help="ablation: train only these rows (comma-separated); the others are reported when finished")
     parser.add_argument("--ablation-subjects", default=None, metavar="NAMES",

@@ -8,21 +8,29 @@ from __future__ import annotations
 import argparse
 
 
+def _configs():
+    from trioman.bench.demo import DemoConfig
+
+    return (DemoConfig,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return option_flags(*_configs())
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    parser.add_argument("--seed", type=int, default=0, help="subject seed (default 0)")
-    parser.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
-    parser.add_argument("--frames", type=int, default=120, help="subject frames (default 120)")
-    parser.add_argument("--iterations", type=int, default=500,
-                        help="training iterations of both avatars, quick preset otherwise (default 500)")
-    parser.add_argument("--model-steps", type=int, default=200, help="Refiner and Examiner training steps (default 200)")
-    parser.add_argument("--augment-frames", type=int, default=24, help="source frames to augment (default 24)")
+    from trioman.options import add_options
+
+    add_options(parser, *_configs())
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def run(args: argparse.Namespace) -> int:
     from trioman.bench.demo import DemoConfig, run_demo
+    from trioman.options import given
 
-    run_demo(DemoConfig(out=args.out, seed=args.seed, size=args.size, frames=args.frames, iterations=args.iterations,
-                        model_steps=args.model_steps, augment_frames=args.augment_frames, progress=not args.quiet))
+    run_demo(DemoConfig(**given(DemoConfig, args), progress=not args.quiet))
     return 0

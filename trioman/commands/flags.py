@@ -3,28 +3,14 @@
 A library's error starts with the name of its parameter (``size: must lie in ...``; ``motion walk: ...`` with
 the value; ``resume and overwrite: ...``) and puts other parameters it mentions in backquotes (``give
 `refiner` too``). A command module declares ``FLAGS``, its parameters -> its flags as typed, and trioman/cli.py
-shows every error of ours through :func:`flag_message` with them. Standard-library imports only.
+shows every error of ours through :func:`flag_message` with them; a command whose options are declared on its
+configs' fields (trioman/options.py) has ``flags()`` instead, made from them. Standard-library imports only.
 """
 
 from __future__ import annotations
 
 import re
 from typing import Mapping
-
-# Commands whose modules declare no FLAGS of their own: the parameters their library errors name -> the flags.
-UNDECLARED = {
-    "train": {"run": "--out", "image_scale": "--image-scale", "refine_poses": "--refine-poses", "extra_frames": "--extra-frames",
-              "extra_weight": "--extra-weight", "resume": "--resume", "extend_iterations": "--extend-iterations",
-              "augment": "--augment", "refiner": "--refiner", "examiner": "--examiner",
-              "per_frame": "--per-frame", "threshold": "--threshold", "augment_start": "--augment-start",
-              "augment_refresh": "--augment-refresh", "augment_pool": "--augment-pool", "augment_share": "--augment-share",
-              "augment_weight": "--augment-weight", "augment_detail_sigma": "--augment-detail-sigma",
-              "augment_mask": "--augment-mask", "augment_align_sources": "--augment-sources",
-              "augment_align_texture": "--augment-texture",
-              "augment_keep_carried": "--augment-keep-carried", "keep_carried": "--augment-keep-carried",
-              "unknown_weight": "--augment-unknown-weight"},
-}
-
 
 def flag_message(message: str, flags: Mapping[str, str]) -> str:
     """``message`` with the leading parameter name(s) (``name:``, ``name VALUE:``, ``a and b:``) and the
@@ -40,9 +26,12 @@ def flag_message(message: str, flags: Mapping[str, str]) -> str:
     return re.sub(r"`(\w+)`", lambda m: flags.get(m[1], m[0]), head + sep + rest)
 
 
-def command_flags(command: str, module) -> Mapping[str, str]:
-    """The flags a command's errors are shown with: its module's ``FLAGS``, else ``UNDECLARED``'s entry."""
-    return getattr(module, "FLAGS", None) or UNDECLARED.get(command, {})
+def command_flags(module) -> Mapping[str, str]:
+    """The flags a command's errors are shown with: its module's ``FLAGS``, or its ``flags()``."""
+    declared = getattr(module, "FLAGS", None)
+    if declared is None and hasattr(module, "flags"):
+        declared = module.flags()
+    return declared or {}
 
 
 def shown_message(err: BaseException, message: str, flags: Mapping[str, str]) -> str:

@@ -107,6 +107,25 @@ def test_the_suggested_command_of_an_augmented_run_parses_back_to_its_config(tmp
     assert augment_config(args) == aug and args.resume
 
 
+def test_the_suggested_command_gives_every_option_the_run_was_started_with(tmp_path):
+    # the hint listed its flags by hand and left out --refine-poses, so a run with pose corrections was refused
+    import shlex
+
+    from trioman.cli import build_parser
+    from trioman.options import given
+    from trioman.toolkit.train.config import TrainConfig
+    from trioman.toolkit.train.resume import resume_command
+
+    extra = tmp_path / "extra"
+    cfg = preset("quick", iterations=9, seed=4, image_scale=0.5, refine_poses=True, extra_frames=str(extra),
+                 extra_weight=0.3)
+    record = {"subject": str(tmp_path / "s"), "extensions": [], "train": cfg.to_dict()}
+    args = build_parser().parse_args(shlex.split(resume_command(tmp_path / "run", record))[1:])
+    assert preset(args.preset or "quick", **given(TrainConfig, args, ("iterations", "image_scale", "seed",
+                                                                      "refine_poses", "extra_frames",
+                                                                      "extra_weight"))) == cfg
+
+
 @pytest.mark.parametrize("where", ["", "weights.", "avatar."])
 def test_a_setting_this_version_does_not_know_is_named_with_the_run_record(subject, tmp_path, capsys, where):
     run = train(subject, tmp_path / "r", TrainConfig(iterations=2, checkpoint_every=2, avatar=TINY), progress=False)
