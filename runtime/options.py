@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import MISSING, dataclass
 from typing import Any, Callable, Iterable
 
@@ -84,9 +85,9 @@ def check_options(obj: Any) -> None:
 
 
 def integer(lo: int | None = None, hi: int | None = None) -> Check:
-    """A check: an integer (not a bool) in [lo, hi]."""
+    """A check: an integer (not a bool; numpy's too) in [lo, hi]."""
     def check(value: Any) -> str | None:
-        ok = isinstance(value, int) and not isinstance(value, bool) and (lo is None or value >= lo) \
+        ok = isinstance(value, numbers.Integral) and not isinstance(value, bool) and (lo is None or value >= lo) \
             and (hi is None or value <= hi)
         if ok:
             return None

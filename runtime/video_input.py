@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from trioman.runtime.formats.subject import check_frame_name
+from trioman.runtime.frame_selection import FrameSelection
 from trioman.runtime.image_io import quiet_opencv
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
@@ -45,42 +46,6 @@ _JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0
 _UNSAFE_NAME = re.compile(r"^[.\-]|[^A-Za-z0-9_.\-]")  # what check_frame_name refuses, one character at a time
 
 Frame = tuple[int, str, np.ndarray]  # (index in the source, name, uint8 RGB [H, W, 3])
-
-
-def _check_int(field: str, value: object, minimum: int, bound: str | None = None) -> None:
-    """ValueError unless ``value`` is an integer >= ``minimum`` (``bound``: how the message says so)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{field}: must be an integer {bound or f'>= {minimum}'}, got {value!r}")
-
-
-@dataclass(frozen=True)
-class FrameSelection:
-    """Which frames of the source are kept, and their size.
-
-    Frame ``i`` is kept when ``start <= i < end`` and ``(i - start) % every == 0``, at most ``max_frames``
-    of them. A frame whose long side exceeds ``long_side`` is downscaled to it (``cv2.INTER_AREA``, aspect
-    kept, sides rounded, at least 1); smaller frames are kept as they are; None keeps the native size.
-    """
-
-    every: int = 1
-    start: int = 0
-    end: int | None = None
-    max_frames: int | None = None
-    long_side: int | None = 540
-
-    def __post_init__(self) -> None:
-        _check_int("every", self.every, 1)
-        _check_int("start", self.start, 0)
-        if self.end is not None:
-            _check_int("end", self.end, self.start + 1, f"> `start` ({self.start})")
-        if self.max_frames is not None:
-            _check_int("max_frames", self.max_frames, 1)
-        if self.long_side is not None:
-            _check_int("long_side", self.long_side, 1)
-
-    def keeps(self, index: int) -> bool:
-        """Whether frame ``index`` is kept, ``max_frames`` aside."""
-        return self.start <= index and (self.end is None or index < self.end) and (index - self.start) % self.every == 0
 
 
 @dataclass(frozen=True)
@@ -96,7 +61,7 @@ class VideoInfo:
     rotation: int  # degrees (clockwise) applied to honour the video's rotation metadata: 0, 90, 180 or 270
 
 
-def open_frames(source: str | Path, selection: FrameSelection = FrameSelection()) -> tuple[VideoInfo, Iterator[Frame]]:
+def open_frames(source: str | Path, selection: FrameSelection | None = None) -> tuple[VideoInfo, Iterator[Frame]]:
     """-> (info, iterator of (index in the source, name, frame uint8 RGB [H, W, 3] resized per ``selection``)).
 
     ``source``: a video file (any container OpenCV's FFmpeg backend reads; names ``f"{index:06d}"``) or a
@@ -107,6 +72,7 @@ def open_frames(source: str | Path, selection: FrameSelection = FrameSelection()
     before it are yielded. Errors are ValueErrors (FileNotFoundError for a missing source) starting with
     the path.
     """
+    selection = selection if selection is not None else FrameSelection()
     path = Path(source)
     if path.is_dir():
         return _open_folder(path, selection)
@@ -126,7 +92,7 @@ def _fit(bgr: np.ndarray, long_side: int | None, rotation: int = 0) -> np.ndarra
     """BGR uint8 [h, w, 3] as decoded -> RGB uint8 [H, W, 3]: downscaled to ``long_side``, then rotated by
     ``rotation`` degrees clockwise (the small image, not the decoded one, is converted and rotated)."""
     h, w = bgr.shape[:2]
-    if long_side is not None and max(h, w) > long_side:
+    if long_side and max(h, w) > long_side:
         scale = long_side / max(h, w)
         size = (max(1, round(w * scale)), max(1, round(h * scale)))
         bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)

@@ -219,7 +219,7 @@ def test_downscale_averages(tmp_path):
     ("end", 0, "end: must be an integer > `start` (0), got 0"),
     ("max_frames", 0, "max_frames: must be an integer >= 1, got 0"),
     ("max_frames", 2.0, "max_frames: must be an integer >= 1, got 2.0"),
-    ("long_side", 0, "long_side: must be an integer >= 1, got 0"),
+    ("long_side", -1, "long_side: must be an integer >= 0, got -1"),
 ])
 def test_bad_selection_is_named(field, value, message):
     with pytest.raises(ValueError) as err:

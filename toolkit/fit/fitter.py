@@ -32,6 +32,7 @@ import torch
 import torch.nn.functional as F
 
 from trioman.runtime.rotations import axis_angle_to_matrix as np_aa_to_matrix
+from trioman.toolkit.fit.config import FitConfig
 from trioman.runtime.rotations import matrix_to_axis_angle as np_matrix_to_aa
 from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.body.anny_model import PHENOTYPE_LABELS
@@ -53,44 +54,6 @@ BODY_HEIGHT = 1.7  # m, the prior person height for the first depth guess
 DIST_MAP_SIDE = 256  # the silhouette distance maps' long side (pixels)
 MAX_PITCH = math.radians(35.0)
 REPAIR_FACTOR, REPAIR_FLOOR = 3.0, 0.02  # a keyframe whose landmark error (person heights) exceeds both is restarted
-
-
-@dataclass(frozen=True)
-class FitConfig:
-    """Settings of ``fit_sequence``; weights are relative to the keypoint term."""
-
-    focal: float | None = None  # pixels; None: the phone prior times the long side
-    refine_focal: bool = True
-    phenotype: tuple[float, ...] | None = None  # Anny's shape when known (PHENOTYPE_LABELS order): not fitted
-    keyframes: int = 24
-    key_iterations: int = 300
-    all_iterations: int = 250
-    lr: float = 0.03
-    w_silhouette: float = 0.5
-    w_world: float = 0.5
-    # the world term's weight on the bones that end at a shoulder (the shoulder line, the torso's sides), which place
-    # the arms' roots; None: ``w_world`` (the arms themselves are not in the term, ``keypoints.LIMBS``)
-    w_world_shoulders: float | None = None
-    w_smooth: float = 20.0
-    w_pose: float = 0.002
-    w_limits: float = 1.0
-    w_upright: float = 0.2
-    w_shape: float = 0.05
-    w_height: float = 1.0  # the height phenotype: a monocular view cannot tell a tall person far away from a short one near
-    w_focal: float = 0.1
-    silhouette_points: int = 500
-    repairs: int = 2  # passes that restart badly fitted keyframes from a neighbour
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.focal is not None and not (math.isfinite(self.focal) and self.focal > 0):
-            raise ValueError(f"focal: must be a positive number of pixels, got {self.focal!r}")
-        for name in ("keyframes", "key_iterations", "all_iterations", "silhouette_points"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
-        if self.w_world_shoulders is not None and not (math.isfinite(self.w_world_shoulders) and self.w_world_shoulders >= 0):
-            raise ValueError(f"w_world_shoulders: must be a finite number >= 0 (or None: w_world), got {self.w_world_shoulders!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,10 +292,11 @@ def _init_trans(obs: Observations, f: float, joints0: np.ndarray, R: np.ndarray)
     return world - joints0
 
 
-def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig = FitConfig(),
+def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig | None = None,
                  progress=None) -> FitResult:
     """Fit Anny to ``obs``; ``base`` is Anny's default body (its topology, weights and skeleton); ``progress``:
     a callable (stage, iteration, total) or None."""
+    cfg = cfg if cfg is not None else FitConfig()
     torch.manual_seed(cfg.seed)
     obs, mirrored = _unmirrored(obs)
     corr = correspondence(base)

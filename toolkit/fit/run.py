@@ -25,36 +25,15 @@ from trioman.runtime.formats import Subject, save_subject
 from trioman.runtime.formats.subject import FIT_REPORT_FILES
 from trioman.runtime.image_io import VideoWriter, atomic_write_text, check_not_input, write_png
 from trioman.runtime.mesh_raster import rasterize_mesh
-from trioman.runtime.person import PersonTracker, TrackerConfig
+from trioman.runtime.person import PersonTracker
 from trioman.runtime.preview import contact_sheet
-from trioman.runtime.video_input import FrameSelection, VideoInfo, open_frames
-from trioman.toolkit.fit.fitter import DIST_MAP_SIDE, FitConfig, FitResult, Observations, fit_sequence
+from trioman.runtime.video_input import VideoInfo, open_frames
+from trioman.toolkit.fit.config import FitConfig, FitRunConfig
+from trioman.toolkit.fit.fitter import DIST_MAP_SIDE, FitResult, Observations, fit_sequence
 from trioman.toolkit.stages import StageLog
 
 FIT_JSON, FIT_MD, OVERLAY_PNG, OVERLAY_MP4 = FIT_REPORT_FILES
 SEQUENCE = "video"
-
-
-@dataclass(frozen=True)
-class FitRunConfig:
-    """What ``fit_video`` reads and how it fits."""
-
-    selection: FrameSelection = field(default_factory=FrameSelection)
-    focal: float | None = None  # pixels at the output size
-    fov_deg: float | None = None  # the long side's field of view in degrees (instead of ``focal``)
-    test_every: int = 8  # every N-th kept frame goes to the test split (0: none)
-    fit: FitConfig = field(default_factory=FitConfig)
-    tracker: TrackerConfig = field(default_factory=TrackerConfig)
-
-    def __post_init__(self) -> None:
-        if self.focal is not None and self.fov_deg is not None:
-            raise ValueError("focal and fov_deg: give one of them, not both")
-        if self.fov_deg is not None and not (isinstance(self.fov_deg, (int, float)) and 1.0 <= self.fov_deg <= 170.0):
-            raise ValueError(f"fov_deg: must lie in [1, 170] degrees, got {self.fov_deg!r}")
-        if self.focal is not None and not (isinstance(self.focal, (int, float)) and math.isfinite(self.focal) and self.focal > 0):
-            raise ValueError(f"focal: must be a positive number of pixels, got {self.focal!r}")
-        if not isinstance(self.test_every, int) or isinstance(self.test_every, bool) or self.test_every < 0 or self.test_every == 1:
-            raise ValueError(f"test_every: must be 0 (no test frames) or an integer >= 2, got {self.test_every!r}")
 
 
 @dataclass
@@ -130,10 +109,11 @@ def _overlay(frame: np.ndarray, body: np.ndarray, mask: np.ndarray) -> np.ndarra
     return img
 
 
-def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig = FitRunConfig(), overwrite: bool = False,
+def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = None, overwrite: bool = False,
               progress: bool = True, say=print) -> Subject:
     """Fit ``source`` (a video file or a folder of frames) into the subject folder ``out`` (its report files
     inside); see the module docstring."""
+    cfg = cfg if cfg is not None else FitRunConfig()
     source, out = Path(source), Path(out)
     check_not_input(out, [source])
     log = StageLog(say=say)
