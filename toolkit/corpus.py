@@ -7,43 +7,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
+from trioman.toolkit.corpus_config import CorpusConfig
 
 CORPUS_JSON = "corpus.json"
-
-
-@dataclass(frozen=True)
-class CorpusConfig:
-    train_subjects: int = 10
-    heldout_subjects: int = 2
-    size: int = 128
-    frames: int = 96
-    seed: int = 1000  # subject i has seed + i
-    iterations: int = 600  # baseline training iterations (quick preset otherwise)
-    baseline_frames: str = "all"  # "all" | "subset" (training subjects; held-out: train split)
-    subset_stride: int = 4
-    style: str = "plain"  # the subjects' synth style (toolkit/synth/subject.py): "plain" or "realistic"
-
-    def __post_init__(self) -> None:
-        from trioman.toolkit.synth.config import STYLES
-
-        if self.style not in STYLES:
-            raise ValueError(f"style: unknown style {self.style!r}; one of {', '.join(STYLES)}")
-        if self.train_subjects < 1 or self.heldout_subjects < 1:
-            raise ValueError(f"train_subjects/heldout_subjects: need >= 1 each, got {self.train_subjects}/{self.heldout_subjects}")
-        if self.baseline_frames not in ("all", "subset"):
-            raise ValueError(f"baseline_frames: expected 'all' or 'subset', got {self.baseline_frames!r}")
-        if self.iterations < 1 or self.subset_stride < 1:
-            raise ValueError(f"iterations/subset_stride: must be >= 1, got {self.iterations}/{self.subset_stride}")
-
-    @property
-    def names(self) -> list[tuple[str, str]]:
-        """(name, role) per subject, role "train" or "heldout"."""
-        n = self.train_subjects + self.heldout_subjects
-        return [(f"s{i:02d}", "train" if i < self.train_subjects else "heldout") for i in range(n)]
 
 
 def finished(run: Path, iterations: int) -> bool:

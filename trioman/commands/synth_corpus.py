@@ -10,23 +10,25 @@ from __future__ import annotations
 
 import argparse
 
-# The parameters the library's errors name (runtime/shards.py, toolkit/corpus.py) -> the flags as typed.
-FLAGS = {"shard": "--shard", "merge": "--merge", "style": "--style"}
+def _configs():
+    from trioman.toolkit.corpus_config import CorpusConfig
+
+    return (CorpusConfig,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {"shard": "--shard", "merge": "--merge", **option_flags(*_configs())}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     parser.add_argument("--out", required=True, help="corpus folder")
-    parser.add_argument("--subjects", type=int, default=10, help="training subjects (default 10)")
-    parser.add_argument("--heldout", type=int, default=2, help="held-out subjects (default 2)")
-    parser.add_argument("--size", type=int, default=128, help="image side (default 128)")
-    parser.add_argument("--frames", type=int, default=96, help="frames per subject (default 96)")
-    parser.add_argument("--iterations", type=int, default=600, help="baseline training iterations (default 600)")
-    parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all",
-                        help="what training subjects' baselines see: all frames (paper) or every 4th (default all)")
-    parser.add_argument("--seed", type=int, default=1000, help="first subject seed (default 1000)")
-    parser.add_argument("--style", choices=("plain", "realistic"), default="plain",
-                        help="the subjects' synth style (trioman synth --style; default plain)")
-    parser.add_argument("--quiet", action="store_true")
+    add_options(parser, *_configs())
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--shard", metavar="I/N", help="build only the subjects of shard I of N (0 <= I < N), no corpus.json")
     parser.add_argument("--merge", action="store_true",
                         help="after every --shard job: check them and write corpus.json (the same settings as the shards)")
@@ -35,22 +37,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
+    from trioman.options import given
     from trioman.runtime.shards import Shard
-    from trioman.toolkit.corpus import CorpusConfig, build_corpus, merge_corpus
+    from trioman.toolkit.corpus import build_corpus, merge_corpus
 
     if args.shard is not None and args.merge:
         raise ValueError("--merge: runs after the --shard jobs, not with --shard")
     shard = None if args.shard is None else Shard.parse(args.shard)
-    cfg = CorpusConfig(train_subjects=args.subjects, heldout_subjects=args.heldout, size=args.size, frames=args.frames,
-                       seed=args.seed, iterations=args.iterations, baseline_frames=args.baseline_frames,
-                       style=args.style)
+    (corpus_config,) = _configs()
+    cfg = corpus_config(**given(corpus_config, args))
     t = time.perf_counter()
     if args.merge:
         root = merge_corpus(args.out, cfg)
-        print(f"synth-corpus: {root} merged ({args.subjects} training + {args.heldout} held-out subjects)")
+        print(f"synth-corpus: {root} merged ({cfg.train_subjects} training + {cfg.heldout_subjects} held-out subjects)")
         return 0
     root = build_corpus(args.out, cfg, progress=not args.quiet, shard=shard)
-    what = f"{args.subjects} training + {args.heldout} held-out subjects"
+    what = f"{cfg.train_subjects} training + {cfg.heldout_subjects} held-out subjects"
     if shard is not None:
         what = f"shard {shard}: {len(shard.take(cfg.names))} of {what}; merge with --merge when every shard is done"
     print(f"synth-corpus: {root} ({what}) in {time.perf_counter() - t:.0f} s")
