@@ -30,8 +30,8 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert list(res) == [v for v, *_ in VARIANTS + LEVERS]
     assert set(res["baseline"]) == set(res["GRE"]) == {"0", "1"} and set(res["G"]) == {"0"}
     plan = AblationPlan(iterations=3)
-    assert res["baseline"]["0"]["iterations"] == 3 and res["GRE"]["0"]["iterations"] == plan.augmented_iterations == 4
-    assert res["baseline_long"]["0"]["iterations"] == 4 and res["baseline"]["0"]["augment"] is None
+    assert res["baseline"]["0"]["iterations"] == 3 and res["GRE"]["0"]["iterations"] == plan.augmented_iterations == 5  # 3 / (0.2 + 0.8 * 0.5)
+    assert res["baseline_long"]["0"]["iterations"] == 5 and res["baseline"]["0"]["augment"] is None
     assert r["plan"]["detail_sigma"] == 2.0
     truth = r["pseudo_gt_truth"]["s02"]
     assert set(truth["frames"]) == {"coarse", "aligned (no Refiner)", "aligned, fused texture 256 (no Refiner)",
