@@ -16,6 +16,7 @@ from trioman.runtime.pseudo_kinds import KINDS, MASKS
 
 MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_kinds.py)
 WITH_REFINER = ("refined", "examined")
+ALONE = "aligned"  # what `--augment` alone runs: the best kind measured that needs no model
 
 
 def _texture(value: Any) -> str | None:
@@ -25,7 +26,7 @@ def _texture(value: Any) -> str | None:
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    mode: str = option("coarse", flag="--augment", choices=MODES, const="aligned", default_text="off; --augment "
+    mode: str = option("coarse", flag="--augment", choices=MODES, const=ALONE, default_text="off; --augment "
                        "alone: aligned, the best kind without a model",
                        help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
                             "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "

@@ -22,6 +22,7 @@ TARGETS = {
     "scale": ("trioman.bench.scale", "bench_scale", "scale_markdown", "ScaleBenchConfig"),
     "fit": ("trioman.bench.fit", "bench_fit", "fit_markdown", "FitBenchConfig"),
     "landmarks": ("trioman.bench.landmarks", "bench_landmarks", "landmarks_markdown", "LandmarksBenchConfig"),
+    "augment-cost": ("trioman.bench.augment_cost", "bench_augment_cost", "augment_cost_markdown", "AugmentCostBenchConfig"),
 }
 # The configs' fields the library's errors name: each the option of its name (``training``: --no-training) -> the flags
 # as typed (trioman/commands/flags.py).
@@ -52,8 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("target", choices=tuple(TARGETS), help="what to benchmark")
     parser.add_argument("--out", default="out/bench", help="report folder (default out/bench)")
-    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64; fit: the long side, 540)")
-    parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500, fit 375: a video of 300)")
+    parser.add_argument("--size", type=int, default=None, help="image side (default: synth/train/render/deploy 256, models/ablation 128, frames 1024, scale 64; fit: the long side, 540; augment-cost: 128 and 256)")
+    parser.add_argument("--frames", type=int, default=None, help="subject frames (default: synth 300, train 120, frames 1500, fit 375: a video of 300, augment-cost 96)")
     parser.add_argument("--seed", type=int, default=None, help="the subject's seed (default: fit 1004, the others 0)")
     parser.add_argument("--style", choices=("plain", "realistic"), default=None,
                         help="synth: the subject's style; ablation: the style of a corpus built here (default plain)")
@@ -94,7 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iterations", type=int, default=None,
                         help="train: every preset's iterations; ablation: real-frame steps of every avatar run (default 600); "
                              "frames: training iterations (default 20); stability: training steps per case (default 30); "
-                             "scale: timed steps per series (default 20)")
+                             "scale: timed steps per series (default 20); augment-cost: steps of each run (default 300)")
     parser.add_argument("--detail-sigma", type=float, default=None, metavar="PX",
                         help="ablation: also train the lever GRd_tex+geo, refined pseudo-GT keeping only the Refiner's detail "
                              "(its change minus that change blurred by PX pixels)")
