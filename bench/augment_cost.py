@@ -85,7 +85,7 @@ def augment_cost_markdown(r: dict) -> str:
              f"Machine: {r['machine']}. The default augmented run: `--augment` alone = {a['mode']}, warm-up "
              f"{a['start']:g}, pool {a['pool']} rebuilt every {a['refresh']} steps, share {a['share']:g}. "
              f"Peak RSS {r['peak_rss_mib']} MiB.", "",
-             f"| size | plain (s) | augmented (s) | ratio | <= {r['target_ratio']}x | pseudo steps | entries made | "
+             f"| size | plain (s) | augmented (s) | ratio | <= {r['target_ratio']}x | pseudo steps | pool entries | "
              "augmentation's seconds by stage |", "|---|---|---|---|---|---|---|---|"]
     for row in r["rows"]:
         stages = ", ".join(f"{k} {v}" for k, v in row["augment_seconds"].items() if v)
