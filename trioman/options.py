@@ -20,6 +20,16 @@ def dest_of(f: dataclasses.Field, spec: Option) -> str:
 _PARSERS = {"int": int, "float": float, "str": str}
 
 
+def _typed(parse):
+    """A field's parser as argparse's ``type``: its ValueError is the message argparse shows."""
+    def typed(text: str):
+        try:
+            return parse(text)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+    return typed
+
+
 def help_text(f: dataclasses.Field, spec: Option) -> str:
     """The option's help with the field's default (or ``default_text``), so help cannot disagree with the library."""
     if spec.default_text is not None:
@@ -46,7 +56,7 @@ def add_options(parser: argparse.ArgumentParser | Any, cls: type, names: Iterabl
         else:
             if kind not in _PARSERS:
                 raise TypeError(f"{cls.__name__}.{f.name}: an option needs an int, float, str or bool field, not {f.type}")
-            kw["type"] = spec.parse or _PARSERS[kind]
+            kw["type"] = _typed(spec.parse) if spec.parse else _PARSERS[kind]
             if spec.choices is not None:
                 kw["choices"] = spec.choices
             if spec.metavar is not None or spec.choices is None:

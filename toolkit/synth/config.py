@@ -5,7 +5,6 @@ Standard-library imports only: the command builds its parser from these fields.
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass
 
 from trioman.runtime.options import check_options, integer, number, option
@@ -27,7 +26,7 @@ def parse_aspect(text: str) -> float:
     try:
         return float(w) / float(h) if sep else float(text)
     except (ValueError, ZeroDivisionError):
-        raise argparse.ArgumentTypeError(f"expected W:H (e.g. 9:16) or a number, got {text!r}") from None
+        raise ValueError(f"expected W:H (e.g. 9:16) or a number, got {text!r}") from None
 
 
 @dataclass(frozen=True)
