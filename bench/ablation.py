@@ -57,6 +57,7 @@ import torch
 from trioman.toolkit.train.augment_config import AugmentConfig
 
 if TYPE_CHECKING:
+    from trioman.toolkit.fit.config import FitConfig
     from trioman.toolkit.train.config import TrainConfig
 
 # (name, augment mode, refiner condition, seeded): the order of the report's rows.
@@ -111,10 +112,13 @@ class AblationPlan:
     coverage: float = 1.0  # share of a full turn the held-out subjects' training frames span (re-rendered when < 1)
     pose_noise: float = 0.0  # degrees of fitting noise on the held-out subjects' stored poses (re-rendered when > 0)
     reach: float = 1.0  # the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of their defaults
+    poses: str = "true"  # the held-out subjects' stored poses: "true" (with pose_noise) or "fit" (`trioman fit` on their video)
 
     @property
     def capture(self) -> str:
         """The suffix of the subjects (and the unaugmented runs) of this plan's capture regime ('' for the corpus's own)."""
+        if self.poses == "fit":
+            return f"-cov{self.coverage:g}-fit"
         return "" if (self.coverage, self.pose_noise) == (1.0, 0.0) else f"-cov{self.coverage:g}-noise{self.pose_noise:g}"
 
     @property
@@ -166,6 +170,7 @@ class AblationBenchConfig:
     detail_sigma: float | None = AblationPlan.detail_sigma  # trains the GRd_tex+geo lever with this blur sigma (pixels)
     coverage: float = AblationPlan.coverage  # share of a full turn the held-out subjects' training frames span
     pose_noise: float = AblationPlan.pose_noise  # degrees of fitting noise on the held-out subjects' stored poses
+    poses: str = AblationPlan.poses  # "true" (with pose_noise) or "fit": the held-out subjects fitted from their video
     reach: float = AblationPlan.reach  # the Generator's camera sigmas as a multiple of their defaults
     augment_start: float = AblationPlan.start  # warm-up share of an augmented run
     augment_pool: int = AblationPlan.pool  # pseudo-GT frames per pool rebuild
@@ -189,6 +194,10 @@ class AblationBenchConfig:
             raise ValueError(f"baseline_frames: ablation trains on one corpus variant, 'all' or 'subset', "
                              f"got {self.baseline_frames!r}")
         check_choice(self, "refiner_size", ("compact", "default"))
+        check_choice(self, "poses", ("true", "fit"))
+        if self.poses == "fit" and self.pose_noise:
+            raise ValueError(f"pose_noise: the fitted poses carry the fit's own error; with poses 'fit' it must be 0, "
+                             f"got {self.pose_noise!r}")
         AugmentConfig(start=self.augment_start, refresh=self.augment_refresh, pool=self.augment_pool,
                       mask=self.augment_mask)  # its checks, naming its fields (the same flags)
         for name in ("variants", "ablation_subjects"):
@@ -456,7 +465,7 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     lpips = load_lpips_or_say_why("bench ablation")
     results: dict[str, dict] = {}
     truth: dict[str, dict] = {}
-    poses = "true" if plan.pose_noise > 0 else "stored"
+    poses = "true" if plan.pose_noise > 0 else "stored"  # fitted subjects: at the fitted test poses, as a user's
     subjects = {h: regime_subject(corpus / "subjects" / h, out, plan) for h in names}
     if not report_only:
         threads = max(1, (os.cpu_count() or 1) // config.jobs) if config.jobs > 1 else torch.get_num_threads()
@@ -493,6 +502,8 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": config.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
+    if plan.poses == "fit":
+        report["fit"] = {h + plan.regime: fit_error(subjects[h]) for h in names}
     report["summary"] = summarise(results)
     _bar_charts(report, out)
     return report
@@ -502,24 +513,63 @@ def plan_of(config: AblationBenchConfig) -> AblationPlan:
     """The avatar runs' plan of ``config``."""
     return AblationPlan(iterations=config.iterations, seeds=config.seeds, start=config.augment_start,
                         refresh=config.augment_refresh, pool=config.augment_pool, detail_sigma=config.detail_sigma,
-                        mask=config.augment_mask, coverage=config.coverage, pose_noise=config.pose_noise, reach=config.reach)
+                        mask=config.augment_mask, coverage=config.coverage, pose_noise=config.pose_noise, reach=config.reach,
+                        poses=config.poses)
 
 
-def regime_subject(subject: Path, out: Path, plan: AblationPlan) -> Path:
-    """The held-out subject as the plan's regime captures it: the corpus's own folder, or (coverage < 1 or pose
-    noise) the same synthetic subject re-rendered with them in OUT/subjects (made once)."""
+def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig | None = None) -> Path:
+    """The held-out subject as the plan's regime captures it: the corpus's own folder, or (coverage < 1, pose
+    noise, fitted poses) the same synthetic subject re-rendered with them in OUT/subjects (made once). Fitted poses:
+    the re-rendered subject's every frame as a video (OUT/subjects/<name>.mp4), ``trioman fit`` on it at its own size
+    with a phone's focal prior (OUT/subjects/<name>_fit: fit.json, overlays), the fit linked to the truth
+    (toolkit/synth/linked.py) with the truth's split: the test frames' poses are fitted too, as a user's are.
+    ``fit``: the fitter's settings (default: `trioman fit`'s)."""
     if not plan.capture:
         return subject
     from trioman.runtime.formats import load_subject
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 
     target = out / "subjects" / (subject.name + plan.capture)
-    if not (target / "subject.json").is_file():
-        made = dict(load_subject(subject, check_images=False).meta["generator"])
-        made.pop("tool"), made.pop("version")
-        cfg = SynthConfig(**{**made, "coverage": plan.coverage, "pose_noise_deg": plan.pose_noise})
+    if (target / "subject.json").is_file():
+        return target
+    made = dict(load_subject(subject, check_images=False).meta["generator"])
+    made.pop("tool"), made.pop("version")
+    cfg = SynthConfig(**{**made, "coverage": plan.coverage, "pose_noise_deg": plan.pose_noise})
+    if plan.poses == "true":
         synthesize_subject(cfg, target, progress=False)
+        return target
+    from trioman.runtime.frame_selection import FrameSelection
+    from trioman.toolkit.fit.config import FitRunConfig
+    from trioman.toolkit.fit.run import fit_video
+    from trioman.toolkit.synth.linked import link_fitted
+
+    stem = out / "subjects" / (subject.name + plan.capture)
+    truth_dir, video, fit_dir = stem.with_name(stem.name + "_truth"), stem.with_name(stem.name + ".mp4"), stem.with_name(stem.name + "_fit")
+    if not (truth_dir / "subject.json").is_file() or not video.is_file():
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        synthesize_subject(cfg, truth_dir, overwrite=True, progress=False, video=video, video_frames="all")
+    if not (fit_dir / "subject.json").is_file():
+        run = FitRunConfig(selection=FrameSelection(long_side=0), test_every=0)
+        fit_video(video, fit_dir, run if fit is None else dataclasses.replace(run, fit=fit), overwrite=True,
+                  progress=False, say=lambda line: print(f"bench ablation: fit {subject.name}: {line}", flush=True))
+    link_fitted(load_subject(fit_dir), load_subject(truth_dir), target)
     return target
+
+
+def fit_error(subject: Path) -> dict | None:
+    """A fitted regime subject's pose error against its truth (toolkit/fit/evaluate.compare: MPJPE, PA-MPJPE and
+    per group in mm, mask IoU; over all fitted frames, and PA-MPJPE over the test frames), or None for a subject
+    of true poses."""
+    from trioman.runtime.formats import load_subject
+    from trioman.toolkit.fit.evaluate import compare
+
+    fitted = subject.with_name(subject.name + "_fit")
+    if not (fitted / "subject.json").is_file():
+        return None
+    linked = load_subject(subject, check_images=False)
+    found = compare(linked, load_subject(subject.with_name(subject.name + "_truth"), check_images=False))
+    test = np.asarray(found.pop("per_frame_pa_mpjpe_mm"))[linked.split == "test"]
+    return {**found, "pa_mpjpe_test": round(float(test.mean()), 1) if len(test) else None}
 
 
 def _mean_over_seeds(runs: dict[str, dict], key: str) -> float:
@@ -842,8 +892,11 @@ def ablation_markdown(r: dict) -> str:
              f"training subjects only, on the coarse frames of the '{r.get('baseline_frames', 'all')}' variant (all: their "
              "avatars saw every frame; subset: every 4th, so most coarse frames carry novel-view error). Test split = novel poses from novel views; PSNR/SSIM under the masked protocol "
              f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
-             f"Capture regime: {plan.get('coverage', 1.0):g} of a full turn in the training frames, pose noise "
-             f"{plan.get('pose_noise', 0.0):g} deg" + (" (evaluated at the true test poses)" if plan.get("pose_noise") else "")
+             f"Capture regime: {plan.get('coverage', 1.0):g} of a full turn in the training frames, "
+             + ("poses fitted by `trioman fit` from each subject's video (every frame; a phone's focal prior), the test "
+                "frames' too, evaluated at their fitted poses; the ceiling rows: the truth at the draws' pose change and camera "
+                "move, applied to the true frame" if plan.get("poses") == "fit" else
+                f"pose noise {plan.get('pose_noise', 0.0):g} deg" + (" (evaluated at the true test poses)" if plan.get("pose_noise") else ""))
              + (f"; the Generator's camera sigmas x{plan['reach']:g}" if plan.get("reach", 1.0) != 1.0 else "")
              + f"; pseudo frames masked by '{plan.get('mask', 'alpha')}'. "
              f"Baseline: {plan['iterations']} steps (quick preset). Augmented runs and the control: "
@@ -888,6 +941,16 @@ def ablation_markdown(r: dict) -> str:
         lines.append("Unmasked PSNR of every augmented row >= the baseline's: "
                      + ("yes." if not below else f"no ({', '.join(below)} below)."))
     lines.append("")
+    if r.get("fit"):
+        lines += ["## The fitted poses against the truth", "", "`trioman fit` on each subject's video (toolkit/fit/evaluate.compare; "
+                  "joints in each camera's frame, mm).", "",
+                  "| subject | frames fitted | PA-MPJPE | on the test frames | arms / legs / head | MPJPE | person mask IoU |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, f in r["fit"].items():
+            if f:
+                lines.append(f"| {name} | {f['frames']} | {f['pa_mpjpe']} | {f['pa_mpjpe_test']} | {f['pa_arms']} / "
+                             f"{f['pa_legs']} / {f['pa_head']} | {f['mpjpe']} | {f['mask_iou']} |")
+        lines.append("")
     for name, res in r["results"].items():
         per = {var: {k: _mean_over_seeds(runs, k) if all(x[k] is not None for x in runs.values()) else None
                      for k in ("psnr", "ssim", "lpips", "psnr_unmasked")} for var, runs in res.items()}

@@ -241,11 +241,15 @@ def _in_workers(renderer: SubjectRenderer, seq: Sequences, viewmat: np.ndarray, 
 
 
 def synthesize_subject(cfg: SynthConfig, out: str | Path, overwrite: bool = False, progress: bool = True,
-                       video: str | Path | None = None, workers: int | None = None) -> Subject:
+                       video: str | Path | None = None, workers: int | None = None,
+                       video_frames: str = "train") -> Subject:
     """Render a synthetic subject into ``out`` (subject format, docs/formats.md) with a contact sheet; ``video``:
-    the training frames also as the MP4 a phone would have recorded (background, sensor and all), frame k of
-    the video being the subject's frame k. The realistic style renders in ``workers`` processes (default: the
-    CPUs this process may use, at most 4); the bytes do not depend on it."""
+    the training frames (``video_frames`` "train"; "all": every frame, the test sequences after them) also as the
+    MP4 a phone would have recorded (background, sensor and all), frame k of the video being the subject's frame
+    k. The realistic style renders in ``workers`` processes (default: the CPUs this process may use, at most 4);
+    the bytes do not depend on it."""
+    if video_frames not in ("train", "all"):
+        raise ValueError(f"video_frames: 'train' or 'all', got {video_frames!r}")
     workers = min(4, len(os.sched_getaffinity(0))) if workers is None else int(workers)
     if workers < 1:
         raise ValueError(f"workers: must be >= 1, got {workers}")
@@ -268,7 +272,7 @@ def synthesize_subject(cfg: SynthConfig, out: str | Path, overwrite: bool = Fals
             (renderer.recorded(i, seq, viewmat) for i in range(cfg.frames))
         for i, (frame, image, mask) in enumerate(tqdm(made, total=cfg.frames, desc="synth: rendering", unit="frame",
                                                        disable=None if progress else True)):
-            if writer is not None and seq.split[i] == "train":
+            if writer is not None and (video_frames == "all" or seq.split[i] == "train"):
                 writer.write(frame)
             if i in picks and cfg.style != "plain":
                 shown[i] = frame
@@ -324,20 +328,31 @@ def subject_contact_sheet(subject: Subject, recorded: dict[int, np.ndarray] | No
 class TruthRenderer:
     """A synthetic subject's own renderer, rebuilt from its subject.json: the truth of the whole person (garments
     and hair included) at any pose and camera (the ceiling of augmentation: what a perfect Refiner would return
-    at a Generator draw), and each stored frame exactly as it was recorded."""
+    at a Generator draw), and each stored frame exactly as it was recorded.
+
+    A subject fitted from a synthetic subject's video and linked to it (``toolkit/synth/linked.py``) has its own
+    world, poses and camera; its truth is the synthetic subject's renderer at the linked frames' true poses and
+    cameras, a draw's pose change and camera move applied to them."""
 
     def __init__(self, subject: Subject) -> None:
         made = dict(subject.meta.get("generator", {}))
-        if made.pop("tool", None) != "trioman synth":
-            raise ValueError(f"{subject.root}: not a synthetic subject (subject.json generator.tool is not 'trioman synth'); "
-                             "the truth exists only for `trioman synth` subjects")
-        made.pop("version", None)
-        self.cfg = SynthConfig(**made)
+        link = made.get("truth")
+        if link is None and made.get("tool") != "trioman synth":
+            raise ValueError(f"{subject.root}: not a synthetic subject (subject.json generator.tool is not 'trioman synth' "
+                             "and it holds no generator.truth link); the truth exists only for `trioman synth` subjects")
+        if link is not None:
+            self.trans_true, self.viewmat_true, self.K_true = _link_arrays(subject, link)
+        synth = dict(made if link is None else link["synth"])
+        synth.pop("tool", None)
+        synth.pop("version", None)
+        self.cfg = SynthConfig(**synth)
         self.mesh, _ = build_body(self.cfg)
         self.renderer = SubjectRenderer(self.cfg, self.mesh)
-        self.subject = subject
+        self.subject, self.linked = subject, link is not None
         self.poses_true = subject.poses if subject.poses_true is None else subject.poses_true
         self.poses, self.width, self.height = subject.poses, subject.width, subject.height
+        if not self.linked:
+            self.trans_true, self.viewmat_true, self.K_true = subject.trans, subject.viewmat, subject.K
 
     def render(self, pose: np.ndarray, trans: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """-> (rgb [H, W, 3] on black, mask [H, W]) of the person at ``pose`` [J, 3], ``trans`` [3]."""
@@ -345,6 +360,9 @@ class TruthRenderer:
 
     def recorded(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stored frame ``index`` re-made: (the camera's frame, the subject's image, its mask); equals the files."""
+        if self.linked:
+            raise ValueError(f"{self.subject.root}: a linked subject's frames come from its video; re-make them from the "
+                             "synthetic subject it was fitted from")
         s = self.subject
         seq = Sequences(pose=np.asarray(self.poses_true, np.float64), trans=np.asarray(s.trans, np.float64),
                         K=np.asarray(s.K, np.float64), viewmat=np.asarray(s.viewmat, np.float64),
@@ -353,6 +371,40 @@ class TruthRenderer:
 
     def at_draw(self, index: int, candidate, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The truth at a Generator candidate of frame ``index``: the candidate's pose change applied to the frame's
-        true pose (the stored pose may carry fitting noise), its camera."""
+        true pose (the stored pose may carry fitting noise), its camera (``K`` [3, 3], the subject's own). A linked
+        subject: the candidate's root shift (in its camera's axes) and its camera move (azimuth, elevation, distance
+        about the frame's centre) applied to the truth's frame and camera, seen with the truth's intrinsics; the
+        root's rotation change is added to the true root's as it is (the Generator's default leaves the root be)."""
         pose = np.asarray(self.poses_true[index], np.float64) + np.asarray(candidate.delta_pose, np.float64)
-        return self.render(pose, candidate.trans, candidate.viewmat, K)
+        if not self.linked:
+            return self.render(pose, candidate.trans, candidate.viewmat, K)
+        from trioman.runtime.generator import orbit_camera, subject_center
+
+        seen, true_view = np.asarray(self.subject.viewmat[index], np.float64), np.asarray(self.viewmat_true[index], np.float64)
+        shift = np.asarray(candidate.trans, np.float64) - np.asarray(self.subject.trans[index], np.float64)
+        shift = true_view[:3, :3].T @ (seen[:3, :3] @ shift)  # the root's shift as its camera sees it
+        trans = np.asarray(self.trans_true[index], np.float64)
+        center = subject_center(self.mesh.skeleton, np.asarray(self.poses_true[index], np.float64), trans)
+        d = candidate.camera
+        viewmat = orbit_camera(true_view, center, d.azimuth, d.elevation, d.log_distance)
+        return self.render(pose, trans + shift, viewmat, np.asarray(self.K_true[index], np.float64))
+
+
+def _link_arrays(subject: Subject, link: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The truth's per-frame (trans [N, 3], viewmat [N, 4, 4], K [N, 3, 3]) of a linked subject, checked."""
+    n = subject.num_frames
+    if not isinstance(link, dict) or not isinstance(link.get("synth"), dict):
+        raise ValueError(f"{subject.root}: subject.json generator.truth: expected an object with the synthetic subject's "
+                         f"settings under 'synth', got {type(link).__name__}")
+    out = []
+    for key, shape in (("trans", (n, 3)), ("viewmat", (n, 4, 4)), ("K", (n, 3, 3))):
+        try:
+            a = np.asarray(link.get(key), np.float64)
+        except (TypeError, ValueError):
+            a = np.zeros((0,))
+        if a.shape != shape or not np.isfinite(a).all():
+            raise ValueError(f"{subject.root}: subject.json generator.truth.{key}: expected finite {list(shape)}, got shape {list(a.shape)}")
+        out.append(a)
+    if subject.poses_true is None:
+        raise ValueError(f"{subject.root}: a linked subject stores the truth's poses as poses_true (frames.npz); none found")
+    return out[0], out[1], out[2]

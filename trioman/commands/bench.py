@@ -31,7 +31,7 @@ _FIELD_FLAGS = {name: "--" + name.replace("_", "-") for name in (
     "heldout", "refiner_steps", "refiner_size", "backbone", "pretrained", "crop", "examiner_steps", "batch",
     "baseline_frames", "examiner", "models", "repeats", "threads", "augment_frames", "seeds", "iterations",
     "detail_sigma", "coverage", "pose_noise", "reach", "augment_start", "augment_pool", "augment_refresh", "augment_mask",
-    "variants", "ablation_subjects", "jobs", "style", "aspect", "focal", "avatar_iterations")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
+    "variants", "ablation_subjects", "jobs", "style", "poses", "aspect", "focal", "avatar_iterations")} | {"training": "--no-training", "pretrained_path": "--pretrained"}
 
 
 # AugmentConfig's options that bench ablation takes (its config's fields augment_<name>: the same flags).
@@ -105,6 +105,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pose-noise", type=float, default=None, metavar="DEG",
                         help="ablation: re-render the held-out subjects with this fitting noise on their stored poses "
                              "(evaluated at the true test poses; default 0)")
+    parser.add_argument("--poses", choices=("true", "fit"), default=None,
+                        help="ablation: the held-out subjects' poses: true (with --pose-noise) or fit (each re-rendered as a "
+                             "video, every frame, and fitted by `trioman fit`; evaluated at the fitted test poses; default true)")
     parser.add_argument("--reach", type=float, default=None, metavar="FACTOR",
                         help="ablation: the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of "
                              "their defaults (default 1)")

@@ -1,0 +1,48 @@
+"""``trioman bench ablation --poses fit`` end to end at a tiny size: the held-out subject re-rendered as a video of
+every frame, fitted, linked to its truth; the control trains on the fitted poses, the ceiling on the truth at the
+draws (the truth through the link: tests/toolkit/synth/test_linked.py), and the report gives the fit's error."""
+
+import json
+
+import pytest
+
+from tests.conftest import skip_without_person_models
+
+pytest.importorskip("torch")
+pytest.importorskip("anny")
+
+from trioman.bench.ablation import AblationPlan, regime_subject  # noqa: E402
+from trioman.cli import main  # noqa: E402
+from trioman.runtime.formats import load_subject  # noqa: E402
+from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
+from trioman.toolkit.fit.config import FitConfig  # noqa: E402
+
+skip_without_person_models()
+
+
+def test_the_ablation_on_fitted_poses(tmp_path, capsys):
+    corpus = tmp_path / "c"
+    build_corpus(corpus, CorpusConfig(train_subjects=1, heldout_subjects=1, size=128, frames=16, iterations=2,
+                                      style="realistic"), progress=False)
+    heldout = json.loads((corpus / "corpus.json").read_text())["subjects"][-1]["name"]
+    out = tmp_path / "bench"
+    plan = AblationPlan(coverage=0.5, poses="fit")
+    fitted = regime_subject(corpus / "subjects" / heldout, out, plan, fit=FitConfig(keyframes=6, key_iterations=30, all_iterations=20))
+    linked, truth = load_subject(fitted), load_subject(fitted.with_name(fitted.name + "_truth"))
+    assert fitted.name == f"{heldout}-cov0.5-fit" and linked.meta["generator"]["tool"] == "trioman fit"
+    assert set(linked.split) == {"train", "test"} and set(linked.sequence) <= set(truth.sequence)
+    assert linked.num_frames >= 0.75 * truth.num_frames  # the fit kept most frames (the video holds them all)
+    assert main(["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--poses", "fit", "--coverage", "0.5",
+                 "--iterations", "4", "--seeds", "1", "--variants", "baseline_long,ceiling",
+                 "--refiner-steps", "2", "--examiner-steps", "2", "--batch", "2", "--augment-refresh", "2",
+                 "--augment-pool", "2"]) == 0
+    report = json.loads((out / "ablation.json").read_text())
+    name = f"{heldout}-cov0.5-fit"
+    assert set(report["results"][name]) == {"baseline_long", "ceiling"}
+    assert report["results"][name]["ceiling"]["0"]["augment"]["pseudo_steps"] > 0  # the truth at fitted draws, through the link
+    fit = report["fit"][name]
+    assert fit["frames"] == linked.num_frames and 0 < fit["pa_mpjpe"] < 500 and fit["pa_mpjpe_test"] > 0
+    assert "## The fitted poses against the truth" in (out / "ablation.md").read_text()
+    capsys.readouterr()
+    assert main(["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--poses", "fit", "--pose-noise", "2"]) == 1
+    assert "--pose-noise: the fitted poses carry the fit's own error" in capsys.readouterr().err
