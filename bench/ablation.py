@@ -465,7 +465,9 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     lpips = load_lpips_or_say_why("bench ablation")
     results: dict[str, dict] = {}
     truth: dict[str, dict] = {}
-    poses = "true" if plan.pose_noise > 0 else "stored"  # fitted subjects: at the fitted test poses, as a user's
+    # noisy poses: at the true test poses; fitted: each test frame's fitted pose refitted to its pixels with the avatar
+    # frozen (test-time pose optimisation, the protocol of fitted captures), so the rows differ by their avatars
+    poses = "true" if plan.pose_noise > 0 else "optimised" if plan.poses == "fit" else "stored"
     subjects = {h: regime_subject(corpus / "subjects" / h, out, plan) for h in names}
     if not report_only:
         threads = max(1, (os.cpu_count() or 1) // config.jobs) if config.jobs > 1 else torch.get_num_threads()
@@ -522,7 +524,8 @@ def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig 
     noise, fitted poses) the same synthetic subject re-rendered with them in OUT/subjects (made once). Fitted poses:
     the re-rendered subject's every frame as a video (OUT/subjects/<name>.mp4), ``trioman fit`` on it at its own size
     with a phone's focal prior (OUT/subjects/<name>_fit: fit.json, overlays), the fit linked to the truth
-    (toolkit/synth/linked.py) with the truth's split: the test frames' poses are fitted too, as a user's are.
+    (toolkit/synth/linked.py) with the truth's split: the test frames' poses are fitted too, as a user's are (and
+    refitted to their pixels when evaluated).
     ``fit``: the fitter's settings (default: `trioman fit`'s)."""
     if not plan.capture:
         return subject
@@ -894,7 +897,8 @@ def ablation_markdown(r: dict) -> str:
              f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
              f"Capture regime: {plan.get('coverage', 1.0):g} of a full turn in the training frames, "
              + ("poses fitted by `trioman fit` from each subject's video (every frame; a phone's focal prior), the test "
-                "frames' too, evaluated at their fitted poses; the ceiling rows: the truth at the draws' pose change and camera "
+                "frames' too, evaluated at their fitted poses refitted to each test frame's pixels with the avatar frozen "
+                "(`trioman eval --poses optimised`); the ceiling rows: the truth at the draws' pose change and camera "
                 "move, applied to the true frame" if plan.get("poses") == "fit" else
                 f"pose noise {plan.get('pose_noise', 0.0):g} deg" + (" (evaluated at the true test poses)" if plan.get("pose_noise") else ""))
              + (f"; the Generator's camera sigmas x{plan['reach']:g}" if plan.get("reach", 1.0) != 1.0 else "")
