@@ -98,13 +98,14 @@ def _flags_of(module) -> dict[str, argparse.Action]:
 
 
 # Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
-# (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus and bench's augmentation options are converted.)
-NOT_YET_DECLARED = {"eval", "export", "import", "triplets", "train-refiner",
-                    "train-examiner", "animate", "render", "augment", "view", "inspect", "bench"}
+# (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus, train-refiner, train-examiner and bench's
+# augmentation options are converted.)
+NOT_YET_DECLARED = {"eval", "export", "import", "triplets", "animate", "render", "augment", "view", "inspect", "bench"}
 # Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
-               "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"}}
+               "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"},
+               "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}}
 
 
 def test_every_flag_of_a_converted_command_has_a_spec():
@@ -119,10 +120,12 @@ def test_every_flag_of_a_converted_command_has_a_spec():
 def test_library_and_command_defaults_are_one_value():
     from trioman.commands.bench import ABLATION_AUGMENT
     from trioman.toolkit.train.augment_config import AugmentConfig
+    from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
     from trioman.toolkit.train.config import TrainConfig
 
     for cmd_name, specs in (("train", declared(TrainConfig) + declared(AugmentConfig)),
-                            ("bench", [(f, s) for f, s in declared(AugmentConfig) if f.name in ABLATION_AUGMENT])):
+                            ("bench", [(f, s) for f, s in declared(AugmentConfig) if f.name in ABLATION_AUGMENT]),
+                            ("train-refiner", declared(TrainRefinerOptions)), ("train-examiner", declared(TrainExaminerOptions))):
         actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == cmd_name)))
         for field, spec in specs:
             action = actions.get(flag_of(field, spec))
@@ -159,3 +162,22 @@ def test_keep_carried_is_on_wherever_there_is_a_refiner():
     assert AugmentConfig(mode="refined", refiner="r.onnx").keep_carried is True
     assert AugmentConfig(mode="refined", refiner="r.onnx", keep_carried=False).keep_carried is False
     assert AugmentConfig.from_dict({"mode": "refined", "refiner": "r.onnx"}).keep_carried is False  # an old record
+
+
+def test_the_model_training_functions_default_to_their_commands_options():
+    import inspect
+
+    pytest.importorskip("torch")
+    from trioman.toolkit.model_configs import REFINER_SIZE_NAMES, TrainExaminerOptions, TrainRefinerOptions
+    from trioman.toolkit.model_training import REFINER_SIZES, FitConfig, examiner_fit, fit_examiner, fit_refiner, refiner_fit
+
+    assert tuple(REFINER_SIZES) == REFINER_SIZE_NAMES
+    refiner, examiner = TrainRefinerOptions(), TrainExaminerOptions()
+    names = {"conditions": "conditions", "refiner_size": "size", "backbone": "backbone", "device": "device",
+             "mixed_precision": "mixed_precision", "gradient_checkpointing": "gradient_checkpointing", "name": "model",
+             "pairing": "pairing", "validation_subjects": "validation_subjects", "validate_every": "validate_every"}
+    for fn, options in ((fit_refiner, refiner), (fit_examiner, examiner)):
+        for p in inspect.signature(fn).parameters.values():
+            if p.name in names:
+                assert p.default == getattr(options, names[p.name]), (fn.__name__, p.name)
+    assert refiner_fit(refiner) == FitConfig() and examiner_fit(examiner) == FitConfig(lr=3e-4, crop=None)

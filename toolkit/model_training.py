@@ -23,6 +23,7 @@ from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
 from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, examiner_loop, pair_auroc
 from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, refiner_loop
 from trioman.toolkit.loops.checkpoint import latest_checkpoint
+from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
 from trioman.toolkit.triplets import TripletSet, Tuples
 
 
@@ -48,8 +49,8 @@ REFINER_SIZES = {"compact": dict(vae_widths=(16, 32, 48), unet_widths=(32, 64, 6
 
 @dataclass(frozen=True)
 class FitConfig:
-    steps: int = 1500
-    batch: int = 4
+    steps: int = TrainRefinerOptions.steps
+    batch: int = TrainRefinerOptions.batch
     k_max: int = 4  # |k| of the texture/reference frame T+k
     lr: float = 2e-4
     seed: int = 0
@@ -67,6 +68,18 @@ class FitConfig:
             raise ValueError(f"crop: must be a multiple of 16 (>= 16) or None, got {self.crop}")
         if self.image_size is not None and (self.image_size < 16 or self.image_size % 16):
             raise ValueError(f"image_size: must be a multiple of 16 (>= 16) or None, got {self.image_size}")
+
+
+def refiner_fit(options: TrainRefinerOptions) -> FitConfig:
+    """The FitConfig of `trioman train-refiner`'s options."""
+    return FitConfig(steps=options.steps, batch=options.batch, crop=options.crop, seed=options.seed,
+                     baseline_frames=options.baseline_frames)
+
+
+def examiner_fit(options: TrainExaminerOptions) -> FitConfig:
+    """The FitConfig of `trioman train-examiner`'s options: whole frames (no crop), the Examiner's learning rate."""
+    return FitConfig(steps=options.steps, batch=options.batch, lr=options.lr, crop=None, seed=options.seed,
+                     baseline_frames=options.baseline_frames)
 
 
 def crop_windows(shape: tuple[int, int], n: int, side: int | None,
@@ -184,16 +197,19 @@ def _previous(run: Path, steps: int) -> dict | None:
     return json.loads((run / "fit.json").read_text())
 
 
-def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, conditions: str = "tex+geo", fit: FitConfig = FitConfig(),
-                refiner_size: str = "compact", model_cfg: RefinerConfig | None = None, lpips=None, *, backbone: str = "scratch",
-                pretrained: str | None = None, device: str = "cpu", mixed_precision: str = "no",
-                gradient_checkpointing: bool = False) -> tuple[torch.nn.Module, dict]:
+def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, conditions: str = TrainRefinerOptions.conditions,
+                fit: FitConfig | None = None, refiner_size: str = TrainRefinerOptions.size, model_cfg: RefinerConfig | None = None,
+                lpips=None, *, backbone: str = TrainRefinerOptions.backbone, pretrained: str | None = None,
+                device: str = TrainRefinerOptions.device, mixed_precision: str = TrainRefinerOptions.mixed_precision,
+                gradient_checkpointing: bool = TrainRefinerOptions.gradient_checkpointing) -> tuple[torch.nn.Module, dict]:
     """Train a Refiner with ``conditions`` on the corpus's training subjects (or a list of triplet
     files) into ``run`` on ``device`` ("cpu" or "cuda"). -> (model, info). ``backbone`` "sd-turbo"
     builds on the local diffusers folder ``pretrained`` (``refiner_size`` then does not apply);
     ``mixed_precision`` and ``gradient_checkpointing`` are RefinerTrainConfig's. Under torchrun
-    (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md)."""
+    (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md). The defaults
+    are `trioman train-refiner`'s (toolkit/model_configs.py)."""
     run = Path(run)
+    fit = refiner_fit(TrainRefinerOptions()) if fit is None else fit
     ranks = current()
     previous = _previous(run, fit.steps)
     stream = _stream(corpus, fit, ranks)
@@ -212,9 +228,11 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
     return model, _finish(run, info, previous, ranks)
 
 
-def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = "examiner_nano", fit: FitConfig = FitConfig(lr=3e-4),
-                 pairing: str = "contrast", validation_subjects: int = 1, validate_every: int = 100, *, device: str = "cpu",
-                 mixed_precision: str = "no") -> tuple[torch.nn.Module, dict]:
+def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, name: str = TrainExaminerOptions.model,
+                 fit: FitConfig | None = None, pairing: str = TrainExaminerOptions.pairing,
+                 validation_subjects: int = TrainExaminerOptions.validation_subjects,
+                 validate_every: int = TrainExaminerOptions.validate_every, *, device: str = TrainExaminerOptions.device,
+                 mixed_precision: str = TrainExaminerOptions.mixed_precision) -> tuple[torch.nn.Module, dict]:
     """Train an Examiner (a registered config name) on the corpus's training subjects (or a list of
     triplet files) into ``run``, at the triplets' size or ``fit.image_size``, with ``pairing``
     (``sample_pairs``: "contrast" or the paper's random draw).
@@ -225,9 +243,11 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
     what export and bench deploy load). 0 trains on every subject and keeps the last step.
 
     ``device`` "cpu" or "cuda"; ``mixed_precision`` is ExaminerTrainConfig's. Under torchrun
-    (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md).
+    (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md). The defaults
+    are `trioman train-examiner`'s (toolkit/model_configs.py).
     """
     run = Path(run)
+    fit = examiner_fit(TrainExaminerOptions()) if fit is None else fit
     ranks = current()
     dev = torch_device(device, ranks)
     files = training_triplets(corpus, fit.baseline_frames)

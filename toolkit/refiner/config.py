@@ -6,10 +6,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-# The paper's ablation (3.2.5): z_c alone; + z_t, the latent of a real frame near the view; + z_g, the body's
-# normal map. "warp" / "warp+geo" take instead of the real frame the geometry-aligned reference
-# (runtime/aligned.py) and refine it: views (aligned, coarse[, normal]) (docs/augmentation.md, "Refiner conditions").
-CONDITIONS = ("none", "tex", "tex+geo", "warp", "warp+geo")
+from trioman.toolkit.model_configs import CONDITIONS  # noqa: F401  (the Refiner's conditions, declared there)
+
 VIEW_COUNT = {"none": 1, "tex": 2, "tex+geo": 3, "warp": 2, "warp+geo": 3}
 ALIGNED_CONDITIONS = ("warp", "warp+geo")
 _TUPLE_FIELDS = ("vae_widths", "unet_widths")

@@ -11,52 +11,52 @@ from __future__ import annotations
 
 import argparse
 
-# The parameters the library's errors name -> the flags as typed (trioman/commands/flags.py).
-FLAGS = {"device": "--device", "baseline_frames": "--baseline-frames"}
+def _configs():
+    from trioman.toolkit.model_configs import TrainExaminerOptions
+
+    return (TrainExaminerOptions,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {**option_flags(*_configs()), "out": "--out"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     parser.add_argument("--corpus", required=True, help="corpus folder (trioman synth-corpus)")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, fit.json)")
-    parser.add_argument("--model", default="examiner_nano", help="config name: examiner_nano, examiner_tiny, examiner_small")
-    parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--batch", type=int, default=4,
-                        help="samples per process and step (default 4; the global batch is this times the process count)")
-    parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all", help="corpus variant")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--pairing", choices=("contrast", "paper"), default="contrast",
-                        help="training pairs: every sample's real and coarse pair (default), or the paper's random draw")
-    parser.add_argument("--validation-subjects", type=int, default=1,
-                        help="hold out the last N training subjects and keep the step with the best AUROC on them (0: last step)")
-    parser.add_argument("--validate-every", type=int, default=100, help="steps between validations")
-    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                        help="cpu or cuda (under torchrun each process takes the GPU of its local rank; default cpu)")
-    parser.add_argument("--mixed-precision", choices=("no", "bf16"), default="no", help="bf16 autocast (CUDA)")
+    add_options(parser, *_configs())
 
 
 def run(args: argparse.Namespace) -> int:
+    from trioman.options import given
     from trioman.toolkit.distributed import process_group
-    from trioman.toolkit.model_training import FitConfig, fit_examiner
+    from trioman.toolkit.model_training import examiner_fit, fit_examiner
     from trioman.toolkit.loops.checkpoint import ConfigMismatch
 
-    fit = FitConfig(steps=args.steps, batch=args.batch, lr=3e-4, crop=None, seed=args.seed, baseline_frames=args.baseline_frames)
-    with process_group(args.device) as ranks:
+    (options,) = _configs()
+    cfg = options(**given(options, args))
+    with process_group(cfg.device) as ranks:
         try:
-            _, info = fit_examiner(args.corpus, args.out, args.model, fit, args.pairing, args.validation_subjects,
-                                   args.validate_every, device=args.device, mixed_precision=args.mixed_precision)
+            _, info = fit_examiner(args.corpus, args.out, cfg.model, examiner_fit(cfg), cfg.pairing, cfg.validation_subjects,
+                                   cfg.validate_every, device=cfg.device, mixed_precision=cfg.mixed_precision)
         except ConfigMismatch as err:
-            raise err.with_hint(resume_hint(args, err)) from None
+            raise err.with_hint(resume_hint(args, cfg, err)) from None
     if not ranks.main:
         return 0
-    print(f"train-examiner: {info['checkpoint']} ({args.model}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
+    print(f"train-examiner: {info['checkpoint']} ({cfg.model}, {cfg.steps} steps, {info['seconds'] / 60:.1f} min, "
           f"final loss {info['final_loss']:.4f})")
     if info.get("selected_step") is not None:
         best = info["validation_auroc"][str(info["selected_step"])]
-        print(f"train-examiner: kept step {info['selected_step']} (validation AUROC {best:.3f} on {args.validation_subjects} held-out subject(s))")
+        print(f"train-examiner: kept step {info['selected_step']} (validation AUROC {best:.3f} on {cfg.validation_subjects} held-out subject(s))")
     return 0
 
 
-def resume_hint(args: argparse.Namespace, err) -> str:
+def resume_hint(args: argparse.Namespace, cfg, err) -> str:
     """What resumes the run whose Examiner (``err``: a ConfigMismatch) differs from the one these options build:
     the command with the --model that builds the run's Examiner at the corpus's image size, when one does."""
     from trioman.commands import command_line
@@ -66,7 +66,7 @@ def resume_hint(args: argparse.Namespace, err) -> str:
     if run.get("img_size") != size:
         return (f"the run's Examiner sees {run.get('img_size')} px images, this corpus's are {size} px: resume it on the "
                 f"corpus it was trained on, or choose another --out")
-    for name in sorted(EXAMINER_CONFIGS, key=lambda name: name != args.model):
+    for name in sorted(EXAMINER_CONFIGS, key=lambda name: name != cfg.model):
         if examiner_config(name, img_size=size).to_dict() == run:
             words = command_line("train-examiner", add_arguments, {**vars(args), "model": name})
             return f"resume it with the options it was started with: `{words}` (or choose another --out)"

@@ -7,61 +7,57 @@ from __future__ import annotations
 
 import argparse
 
-# The parameters the library's errors name -> the flags as typed (trioman/commands/flags.py).
-FLAGS = {"device": "--device", "baseline_frames": "--baseline-frames", "pretrained_path": "--pretrained"}
+def _configs():
+    from trioman.toolkit.model_configs import TrainRefinerOptions
+
+    return (TrainRefinerOptions,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {**option_flags(*_configs()), "pretrained_path": "--pretrained", "out": "--out"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--corpus", help="corpus folder (trioman synth-corpus): its training subjects' triplets")
     source.add_argument("--triplets", nargs="+", metavar="FILE",
                         help="triplet files instead (trioman triplets, e.g. --draws N ones of synthetic subjects)")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, fit.json)")
-    parser.add_argument("--conditions", choices=("none", "tex", "tex+geo", "warp", "warp+geo"), default="warp+geo",
-                        help="warp / warp+geo: refine the geometry-aligned reference (the default, warp+geo, measured "
-                             "best: docs/findings.md, 'Augmentation'); the paper's none / tex / tex+geo: a real frame "
-                             "near the view as reference")
-    parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--batch", type=int, default=4,
-                        help="samples per process and step (default 4; the global batch is this times the process count)")
-    parser.add_argument("--crop", type=int, default=64, help="training crop side, a multiple of 16 (default 64)")
-    parser.add_argument("--size", choices=("compact", "default"), default="compact", help="Refiner widths")
-    parser.add_argument("--baseline-frames", choices=("all", "subset"), default="all", help="corpus variant")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--backbone", choices=("scratch", "sd-turbo"), default="scratch",
-                        help="sd-turbo: the paper's SD-Turbo backbone from --pretrained DIR (needs trioman[diffusion])")
-    parser.add_argument("--pretrained", metavar="DIR", help="local SD-Turbo folder in diffusers layout (never downloaded)")
-    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                        help="cpu or cuda (under torchrun each process takes the GPU of its local rank; default cpu)")
-    parser.add_argument("--mixed-precision", choices=("no", "bf16"), default="no", help="bf16 autocast (CUDA)")
-    parser.add_argument("--gradient-checkpointing", action="store_true", help="recompute activations (sd-turbo)")
+    add_options(parser, *_configs())
 
 
 def run(args: argparse.Namespace) -> int:
+    from trioman.options import given
     from trioman.toolkit.distributed import process_group
-    from trioman.toolkit.model_training import FitConfig, fit_refiner
+    from trioman.toolkit.model_training import fit_refiner, refiner_fit
     from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
     from trioman.toolkit.loops.checkpoint import ConfigMismatch
 
-    fit = FitConfig(steps=args.steps, batch=args.batch, crop=args.crop, seed=args.seed, baseline_frames=args.baseline_frames)
-    with process_group(args.device) as ranks:
+    (options,) = _configs()
+    cfg = options(**given(options, args))
+    with process_group(cfg.device) as ranks:
         lpips = load_lpips()  # a named folder without the weights is an error before any work
         try:
-            _, info = fit_refiner(args.corpus or args.triplets, args.out, args.conditions, fit, args.size, lpips=lpips,
-                                  backbone=args.backbone, pretrained=args.pretrained, device=args.device,
-                                  mixed_precision=args.mixed_precision, gradient_checkpointing=args.gradient_checkpointing)
+            _, info = fit_refiner(args.corpus or args.triplets, args.out, cfg.conditions, refiner_fit(cfg), cfg.size, lpips=lpips,
+                                  backbone=cfg.backbone, pretrained=cfg.pretrained, device=cfg.device,
+                                  mixed_precision=cfg.mixed_precision, gradient_checkpointing=cfg.gradient_checkpointing)
         except ConfigMismatch as err:
-            raise err.with_hint(resume_hint(args, err)) from None
+            raise err.with_hint(resume_hint(args, cfg, err)) from None
     if not ranks.main:
         return 0
     if lpips is None:  # rank 0 alone says it, once the run has trained, never before an error
         print(f"train-refiner: {NOT_FOUND_MESSAGE}")
-    print(f"train-refiner: {info['checkpoint']} ({args.conditions}, {args.steps} steps, {info['seconds'] / 60:.1f} min, "
+    print(f"train-refiner: {info['checkpoint']} ({cfg.conditions}, {cfg.steps} steps, {info['seconds'] / 60:.1f} min, "
           f"final loss {info['final_loss']:.4f})")
     return 0
 
 
-def resume_hint(args: argparse.Namespace, err) -> str:
+def resume_hint(args: argparse.Namespace, cfg, err) -> str:
     """What resumes the run whose Refiner (``err``: a ConfigMismatch) differs from the one these options build:
     the command with the options that build the run's Refiner, when some do."""
     from trioman.commands import command_line
@@ -69,7 +65,7 @@ def resume_hint(args: argparse.Namespace, err) -> str:
     from trioman.toolkit.refiner import RefinerConfig
 
     run = err.run_config
-    sizes = sorted(REFINER_SIZES, key=lambda name: name != args.size) if run.get("backbone") == "scratch" else [args.size]
+    sizes = sorted(REFINER_SIZES, key=lambda name: name != cfg.size) if run.get("backbone") == "scratch" else [cfg.size]
     for size in sizes:  # the options that build a Refiner as fit_refiner does
         options = {"crop": run.get("image_size"), "conditions": run.get("conditions"), "backbone": run.get("backbone"),
                    "pretrained": run.get("pretrained_path"), "size": size}
@@ -79,7 +75,8 @@ def resume_hint(args: argparse.Namespace, err) -> str:
                                  pretrained_path=options["pretrained"], **widths).to_dict() == run
         except (TypeError, ValueError):
             same = False
-        if same:
+        if same:  # an option at its default that the user did not type is left out
+            options = {k: None if getattr(args, k) is None and v == getattr(type(cfg), k) else v for k, v in options.items()}
             words = command_line("train-refiner", add_arguments, {**vars(args), **options})
             return f"resume it with the options it was started with: `{words}` (or choose another --out)"
     return ("no options of this trioman build the run's Refiner: resume it with the trioman version that started it, "
