@@ -18,6 +18,7 @@ from trioman.runtime.image_io import atomic_write_text, write_png, write_video
 from trioman.runtime.preview import contact_sheet
 from trioman.toolkit.avatar.model import GaussianAvatar, PoseFree
 from trioman.toolkit.cpu import flush_denormals
+from trioman.toolkit.evaluate_config import POSES, PROTOCOLS, EvalOptions
 from trioman.toolkit.metrics import METRIC_KEYS, evaluate_pair
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint
 from trioman.toolkit.train.config import TrainConfig
@@ -26,9 +27,6 @@ from trioman.toolkit.train.loop import photometric, render
 from trioman.toolkit.train.resume import read_record
 
 WHITE = torch.ones(3)
-PROTOCOLS = ("ours", "exavatar")
-POSES = ("run", "stored", "true", "optimised")  # evaluate(poses=...): the run's corrected poses, the subject's stored,
-# the truth, or the run's refitted to each frame's own pixels (toolkit/pose_refit.py)
 # --protocol exavatar: ExAvatar's evaluation (ExAvatar_RELEASE avatar/tools/eval_neuman.py without --include_bkg;
 # the release holds no X-Humans evaluation script, so X-Humans is scored the same way): both images composited over
 # white outside the GT mask, full image, no crop, torchmetrics PSNR and SSIM (data range 1), LPIPS-AlexNet
@@ -97,9 +95,9 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
 
 
 @flush_denormals()
-def evaluate(run: str | Path, split: str = "test", out: str | Path | None = None, lpips=None,
-             progress: bool = True, grid_frames: int = 6, video: bool = True, protocol: str = "ours",
-             poses: str = "run", refit: RefitSettings | None = None) -> dict:
+def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | None = None, lpips=None,
+             progress: bool = True, grid_frames: int = 6, video: bool = EvalOptions.video,
+             protocol: str = EvalOptions.protocol, poses: str = EvalOptions.poses, refit: RefitSettings | None = None) -> dict:
     """Evaluate and write the report into ``out`` (default RUN/eval_<split>). Returns the summary.
 
     ``protocol="exavatar"`` adds ExAvatar's numbers (``EXAVATAR_KEYS``) beside ours. ``poses``: "run" renders at
