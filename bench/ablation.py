@@ -367,9 +367,9 @@ def _evaluated(run: Path, iterations: int, lpips, poses: str = "stored") -> dict
 
 
 def needed_models(variants: list[str]) -> list[str]:
-    """The models (keys "refiner_<condition>", "examiner") that training ``variants`` needs; the tex+geo and
-    warp+geo Refiners always (their condition checks)."""
-    conds = {"tex+geo", "warp+geo"} | {c for n, _, c, _ in ALL_VARIANTS if n in variants and c is not None}
+    """The models (keys "refiner_<condition>", "examiner") that training ``variants`` needs (the condition check
+    covers the tex+geo and warp+geo Refiners that are there: with every row, both)."""
+    conds = {c for n, _, c, _ in ALL_VARIANTS if n in variants and c is not None}
     keys = [f"refiner_{c}" for c in ("none", "tex", "tex+geo", "warp", "warp+geo") if c in conds]
     return keys + (["examiner"] if "GRE" in variants else [])
 
