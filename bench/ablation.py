@@ -660,7 +660,10 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     candidate's pose change on the true pose, its camera). Writes pseudo_gt_<name>.png (rows: draws; columns:
     truth, render, aligned, each Refiner). -> {"frames": masked PSNR per kind, "coverage": mean share of body
     pixels holding carried real pixels, "ms_per_draw": per kind, "avatars": per finished run (seed 0) masked PSNR
-    of its render and its mean signed colour error (RGB, inside the true mask)}."""
+    of its render and its mean signed colour error (RGB, inside the true mask), "off_body": the true person pixels
+    beyond the body mesh at the draw (hair, loose clothes): their share of the person, how much of them the carried
+    mask and the avatar's alpha cover (recall) and how much either adds outside the person (spill, a share of the
+    person's pixels), and each kind's PSNR on them alone}."""
     from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
     from trioman.runtime.formats import load_subject
     from trioman.runtime.generator import sample
@@ -713,6 +716,16 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     if plan.detail_sigma and "refiner_tex+geo" in models:
         kinds.append((f"detail only (tex+geo, {plan.detail_sigma:g} px)", PseudoConfig("refined", detail_sigma=plan.detail_sigma),
                       next(r for label, _, r in kinds if label == "refined (tex+geo)")))
+    # The person beyond the body (hair, loose clothes): true person pixels the body mesh at the draw does not cover
+    drawn = [aligner.align(src.position, c.pose, c.trans, c.viewmat, src.K) for c, src, _ in picked]
+    inside = mask[..., 0] > 0.5
+    off = inside & ~np.stack([a.body for a in drawn])
+    alphas = np.stack([render_with(base, src.K)(c)[1] for c, src, _ in picked])
+    off_body = {"share": float(off.sum() / max(1, inside.sum())),
+                "masks": {name: {"recall": float((m[off] > 0.5).mean()) if off.any() else None,
+                                 "spill": float(((m > 0.5) & ~inside).sum() / max(1, inside.sum()))}
+                          for name, m in (("carried", np.stack([a.silhouette for a in drawn])), ("alpha", alphas))},
+                "psnr": {}}
     frames, coverage, ms, columns = {}, {}, {}, {}
     for label, cfg, refiner in kinds:
         seconds: dict[str, float] = {}
@@ -721,6 +734,9 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
                                    refiner=refiner, seconds=seconds) for c, src, _ in picked]
         images = np.stack([m.images[0] for m in made])  # over the subject's background; composited like the truth
         frames[label] = psnr(images)
+        if off.any():  # on the off-body pixels alone, against the truth over the same background
+            want = truth + (1 - mask) * bg
+            off_body["psnr"][label] = float(psnr_db(images[off][None, None], want[off][None, None])[0])
         ms[label] = 1e3 * sum(seconds.values()) / draws
         if made[0].coverage:
             coverage[label] = float(np.mean([m.coverage[0] for m in made]))
@@ -746,7 +762,7 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
             x = np.stack([render_with(model, src.K)(c)[0] for c, src, _ in picked])
             inside = mask[..., 0] > 0.5
             avatars[v] = {"psnr": psnr(x), "colour_bias": [float(b) for b in (x - truth)[inside].mean(0)]}
-    found = {"draws": draws, "frames": frames, "coverage": coverage, "ms_per_draw": ms, "avatars": avatars}
+    found = {"draws": draws, "frames": frames, "coverage": coverage, "ms_per_draw": ms, "avatars": avatars, "off_body": off_body}
     if "examiner" in models and "refiner_warp+geo" in models:
         found["examiner"] = examiner_choices(subj, base, models, truth_renderer, aligner, draws, seed, plan.camera)
     return found
@@ -982,6 +998,17 @@ def ablation_markdown(r: dict) -> str:
                   f"{'' if k not in t.get('coverage', {}) else format(t['coverage'][k], '.0%')} | "
                   f"{t.get('ms_per_draw', {}).get(k, float('nan')):.0f} |" for k, v in t["frames"].items()]
         lines += [""] + _frame_target(t["frames"])
+        o = t.get("off_body")
+        if o and o["psnr"]:
+            lines += ["", f"The person beyond the body (hair, loose clothes: true person pixels the body mesh at the draw "
+                      f"does not cover) is **{o['share']:.0%}** of the person's pixels. Which masks reach it (recall: the "
+                      "share of those pixels a mask holds; spill: what a mask adds outside the person, as a share of the "
+                      "person's pixels) and each pseudo-GT's PSNR on those pixels alone:", "",
+                      "| mask | recall beyond the body | spill |", "|---|---|---|"]
+            lines += [f"| {k} | {'n/a' if m['recall'] is None else format(m['recall'], '.0%')} | {m['spill']:.1%} |"
+                      for k, m in o["masks"].items()]
+            lines += ["", "| pseudo-GT | PSNR beyond the body |", "|---|---|"]
+            lines += [f"| {k} | {v:.2f} |" for k, v in o["psnr"].items()]
         lines += ["", "Each finished run's own renders at the same draws (what its next pseudo-GT would start from), with "
                   "the mean signed colour error inside the body (RGB, 0..1):", "",
                   "| run (seed 0) | PSNR vs truth | colour error R, G, B |", "|---|---|---|"]
