@@ -359,7 +359,7 @@ def _evaluated(run: Path, iterations: int, lpips, poses: str = "stored") -> dict
 
     summary_file = run / "eval_test" / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
-    if summary is None or summary["step"] != iterations or summary.get("poses", "stored") != poses:
+    if summary is None or summary["step"] != iterations or summary.get("poses_key") != poses:
         summary = evaluate(run, "test", lpips=lpips, progress=False, video=False, grid_frames=3, poses=poses)
     seconds = float((run / "train_log.csv").read_text().splitlines()[-1].split(",")[1])
     aug = json.loads((run / AUGMENT_JSON).read_text()) if (run / AUGMENT_JSON).is_file() else None

@@ -113,6 +113,7 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
     model, subject, cfg, step = load_run(run)
     if poses == "true" and subject.poses_true is None:
         raise ValueError(f"poses: {subject.root} records no ground-truth poses (poses_true); evaluate at the stored poses")
+    requested = poses
     corrected = run_poses(run, subject) if poses in ("run", "optimised") else None
     at = {"run": corrected, "stored": None, "true": (subject.poses_true, subject.trans), "optimised": corrected}[poses]
     if poses == "run":
@@ -149,7 +150,8 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
         triplets.append((gt, pred))
         if int(i) in picks:
             triplets[-1] = (gt, pred, error_map(pred, gt))
-    summary = {**_summarise(rows, split, step, cfg, lpips is not None, protocol), "poses": poses}
+    # "poses" says what the frames were rendered at; "poses_key" is the option asked for (a reuse check compares it)
+    summary = {**_summarise(rows, split, step, cfg, lpips is not None, protocol), "poses": poses, "poses_key": requested}
     _write_reports(out, rows, summary)
     grid = [im for t in triplets if len(t) == 3 for im in t]
     labels = [f"{name} {r['frame']}" for r, t in zip(rows, triplets) if len(t) == 3 for name in ("GT", "render", "error x4")]

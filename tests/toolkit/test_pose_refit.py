@@ -110,6 +110,7 @@ def test_evaluation_at_refitted_poses_and_its_command(scene, tmp_path, capsys):
     refit = evaluate(run, "test", tmp_path / "e_opt", progress=False, video=False, poses="optimised",
                      refit=RefitSettings(steps=2))
     assert refit["poses"] == "stored, refitted to each frame (2 steps at 0.5 of the size)"
+    assert (refit["poses_key"], stored["poses_key"]) == ("optimised", "stored")
     assert refit["frames"] == stored["frames"] and refit["mean"]["psnr"] != stored["mean"]["psnr"]
     from trioman.cli import main
 
