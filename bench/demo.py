@@ -76,22 +76,21 @@ def _quick_preset(cfg: DemoConfig, **overrides: Any) -> TrainConfig:
 
 def _baseline(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
     """Subject, turntable, baseline avatar, its evaluation, export and animations."""
-    import shutil
-
     from trioman.export.avatar import export_avatar
     from trioman.runtime.animate import animate
+    from trioman.runtime.image_io import remove_own
     from trioman.runtime.formats.motion import motion_from_spec
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.synth.turntable import write_turntable
-    from trioman.toolkit.train.loop import train
+    from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     synth = SynthConfig(seed=cfg.seed, size=cfg.size, frames=cfg.frames, coverage=cfg.coverage)
     with log.stage("synth"):
         subject = synthesize_subject(synth, out / "subject", overwrite=True, progress=progress)
     with log.stage("turntable"):
         video = write_turntable(synth, out / "turntable.mp4", progress=progress)
-    shutil.rmtree(out / "run", ignore_errors=True)  # the demo always starts a fresh run
+    remove_own(out / "run", RUN_FOLDER)  # the demo always starts a fresh run (an earlier demo's, nothing else)
     train_cfg = _quick_preset(cfg)
     with log.stage("train"):
         run_dir = train(subject.root, out / "run", train_cfg, progress=progress, lpips=lpips)
@@ -114,16 +113,16 @@ def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, 
                    progress: bool) -> dict:
     """Triplets of the trained avatar -> Refiner (warp+geo) and Examiner on the subject's training frames
     -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
-    import shutil
-
     from trioman.export.onnx_models import export_onnx
     from trioman.runtime.augment import augment
-    from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
+    from trioman.runtime.image_io import remove_own
+    from trioman.toolkit.model_training import MODEL_RUN, FitConfig, fit_examiner, fit_refiner
     from trioman.toolkit.triplets import build_triplets
 
     with log.stage("triplets"):
         triplets = build_triplets(run_dir, out / "triplets.npz", progress=progress)
-    shutil.rmtree(out / "models", ignore_errors=True)  # fresh models, like the fresh avatar run
+    for name in ("refiner", "examiner"):  # fresh models, like the fresh avatar run
+        remove_own(out / "models" / name, MODEL_RUN)
     steps = cfg.model_steps
     with log.stage("refiner"):
         _, refiner = fit_refiner([triplets], out / "models" / "refiner", "warp+geo", FitConfig(steps=steps, split="train"))
@@ -145,14 +144,13 @@ def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, 
 
 def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
     """An avatar trained with online aligned augmentation (``--augment aligned``), evaluated on the test split."""
-    import shutil
-
+    from trioman.runtime.image_io import remove_own
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.train.augmentation import AugmentConfig
-    from trioman.toolkit.train.loop import train
+    from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     run_aug = out / "run_augmented"
-    shutil.rmtree(run_aug, ignore_errors=True)
+    remove_own(run_aug, RUN_FOLDER)
     train_cfg = _quick_preset(cfg, augment=AugmentConfig(mode="aligned"))
     with log.stage("train augmented"):
         train(out / "subject", run_aug, train_cfg, progress=progress, lpips=lpips)

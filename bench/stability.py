@@ -367,22 +367,20 @@ def avatar_training_rows(out: Path, iterations: int, frames: int = 4, size: int 
     the train log's."""
     import csv
     import dataclasses
-    import shutil
-
     from trioman.bench.frames import write_subject
+    from trioman.runtime.image_io import remove_own
     from trioman.toolkit.train.config import preset
-    from trioman.toolkit.train.loop import train
+    from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     subject = out / "stability_subject"
-    if not (subject / "subject.json").exists():
-        shutil.rmtree(subject, ignore_errors=True)
+    if not (subject / "subject.json").exists():  # written whole or not at all (save_subject); never over a foreign folder
         write_subject(subject, frames, size)
     rows = []
     for factor in LR_FACTORS:
         cfg = preset("quick", iterations=iterations, checkpoint_every=1)
         cfg = dataclasses.replace(cfg, lr=cfg.lr * factor, point_color_lr=cfg.point_color_lr * factor)
         run = out / f"stability_train_lr_x{factor}"
-        shutil.rmtree(run, ignore_errors=True)
+        remove_own(run, RUN_FOLDER)
         outcome = loop_outcome(lambda cfg=cfg, run=run: train(subject, run, cfg, progress=False), run)
         with (run / "train_log.csv").open() as f:
             losses = [float(r["loss"]) for r in csv.DictReader(f)]
@@ -394,9 +392,9 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
     """The Refiner and the Examiner loops on the tiny models and synthetic frames (one fixed batch).
     Losses: those the loop returns (none when it stopped)."""
     import dataclasses
-    import shutil
-
     from trioman.export.onnx_models import synthetic_frames
+    from trioman.runtime.image_io import remove_own
+    from trioman.toolkit.loops.checkpoint import LOOP_RUN
     from trioman.toolkit.examiner import ExaminerTrainConfig, examiner_loop
     from trioman.toolkit.model_training import examiner_batch, refiner_batch
     from trioman.toolkit.refiner import RefinerTrainConfig, refiner_loop
@@ -413,7 +411,7 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
         for factor in LR_FACTORS:
             cfg = dataclasses.replace(default, lr=default.lr * factor)
             run = out / f"stability_train_{loop.lower()}_lr_x{factor}"
-            shutil.rmtree(run, ignore_errors=True)
+            remove_own(run, LOOP_RUN)
             outcome = loop_outcome(lambda fit=fit, cfg=cfg, run=run: fit(cfg, run), run)
             rows.append(_training_row(loop, factor, cfg.lr, outcome, [] if outcome.result is None else outcome.result.losses))
     return rows

@@ -4,7 +4,6 @@ and where the time of one training step goes (``bench_train``).
 
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -127,7 +126,8 @@ def train_presets(config: TrainBenchConfig, out: Path) -> dict:
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
-    from trioman.toolkit.train.loop import train
+    from trioman.runtime.image_io import remove_own
+    from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     subject_dir = out / "subject"
     if not (subject_dir / "subject.json").exists():
@@ -153,7 +153,7 @@ def train_presets(config: TrainBenchConfig, out: Path) -> dict:
             print(f"bench train [{name}] step {step}: {train_seconds:.0f} s, train PSNR {point['train_psnr']:.2f} dB, "
                   f"test PSNR {point['test_psnr']:.2f} dB", flush=True)
 
-        shutil.rmtree(run, ignore_errors=True)  # each benchmark trains from scratch
+        remove_own(run, RUN_FOLDER)  # each benchmark trains from scratch (an earlier run of it, nothing else)
         t0 = time.perf_counter()
         train(subject_dir, run, cfg, on_checkpoint=on_checkpoint)
         wall = time.perf_counter() - t0

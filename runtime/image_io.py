@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import fnmatch
+import json
 import os
 import re
 import secrets
@@ -173,32 +174,33 @@ def write_synced(path: PathLike, data: bytes | Callable[[BinaryIO], None]) -> No
 class FolderKind:
     """One kind of folder a command writes (a subject, an avatar, ...): what ``overwrite`` may replace.
 
-    ``marker``: the metadata file that makes a folder this kind; ``files``: the patterns (fnmatch) of the
-    files it holds at the top (the marker included); ``folders``: each sub-folder's name -> the patterns
-    of the files in it. Temporary names (:func:`is_temp_name`) belong to every kind (what a kill -9 left).
+    ``marker``: the metadata file (or sub-folder) that makes a folder this kind; ``files``: the patterns (fnmatch) of the
+    files it holds at the top (the marker included); ``folders``: each sub-folder's name (a pattern) -> the
+    patterns of the files in it. Temporary names (:func:`is_temp_name`) belong to every kind (what a kill -9 left).
     Anything else is foreign: a folder holding it is never replaced."""
 
     name: str  # in messages: "a trioman <name> folder"
     marker: str
     files: tuple[str, ...] = ()
     folders: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    format: str | None = None  # the marker's JSON "format": what tells trioman's marker from another program's file
 
     def first_foreign(self, path: PathLike) -> Path | None:
         """The first entry of the folder ``path`` (sorted, top level first) that this kind does not write: its
         first entry when the marker is missing. None when the folder is this kind's and holds nothing else."""
         path = Path(path)
         entries = sorted(path.iterdir(), key=lambda p: p.name)
-        if not (path / self.marker).is_file():
+        if not (path / self.marker).exists():
             return next((p for p in entries if not is_temp_name(p.name)), None)
-        folders = dict(self.folders)
         for entry in entries:
             name = entry.name
             if is_temp_name(name):
                 continue
-            if name in folders and entry.is_dir() and not entry.is_symlink():
+            inside = next((patterns for folder, patterns in self.folders if fnmatch.fnmatchcase(name, folder)), None)
+            if inside is not None and entry.is_dir() and not entry.is_symlink():
                 for inner in sorted(entry.iterdir(), key=lambda p: p.name):
                     if not (is_temp_name(inner.name) or (inner.is_file() and not inner.is_symlink()
-                                                         and _matches(inner.name, folders[name]))):
+                                                         and _matches(inner.name, inside))):
                         return inner
             elif not (entry.is_file() and not entry.is_symlink() and _matches(name, self.files)):
                 return entry
@@ -209,9 +211,64 @@ def _matches(name: str, patterns: Iterable[str]) -> bool:
     return any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns)
 
 
+_KNOWN: dict[str, FolderKind] = {}  # marker -> the kind of folder trioman writes with it (``known_kind``)
+
+
+def known_kind(kind: FolderKind) -> FolderKind:
+    """Declare ``kind`` as a folder trioman writes (its module does, where the kind is defined): no output goes
+    inside such a folder, and a refusal names the kind a folder is (:func:`kind_of`). -> ``kind``"""
+    _KNOWN[kind.marker] = kind
+    return kind
+
+
+def _marks(path: Path, kind: FolderKind) -> bool:
+    """Whether ``path`` holds ``kind``'s marker (a JSON object of its ``format``, when the kind has one)."""
+    marker = path / kind.marker
+    if not marker.is_file():
+        return False
+    if kind.format is None:
+        return True
+    try:
+        with open(marker, "rb") as f:
+            head = json.loads(f.read(1 << 20))  # a marker is small; a larger file is not one of ours
+    except (OSError, ValueError):
+        return False
+    return isinstance(head, dict) and head.get("format") == kind.format
+
+
+def kind_of(path: PathLike) -> FolderKind | None:
+    """The declared kind whose marker the folder ``path`` holds (None: none, or not a folder)."""
+    path = Path(path)
+    return next((k for k in _KNOWN.values() if _marks(path, k)), None)
+
+
+def _enclosing(target: Path) -> tuple[Path, FolderKind] | None:
+    """The nearest folder above the resolved ``target`` that is a folder of a declared kind."""
+    for parent in target.parents:
+        kind = kind_of(parent)
+        if kind is not None:
+            return parent, kind
+    return None
+
+
+def not_a_file(path: PathLike) -> str | None:
+    """None when ``path`` is a regular file (through links); else what it is instead, for an error message:
+    "missing file", "a broken link", "a folder, not a file" or "not a regular file (a FIFO, socket or device)"."""
+    path = Path(path)
+    if path.is_file():
+        return None
+    if path.is_dir():
+        return "a folder, not a file"
+    if path.exists():
+        return "not a regular file (a FIFO, socket or device)"
+    return "a broken link" if path.is_symlink() else "missing file"
+
+
 def check_not_input(path: PathLike, inputs: Iterable[PathLike | None]) -> None:
-    """ValueError when the output folder ``path`` is one of ``inputs``, holds one, or lies inside one: a command
-    never writes over or into what it reads (None entries are skipped)."""
+    """ValueError when the output ``path`` (a folder or a file) is one of ``inputs``, holds one, or lies inside
+    one, or lies inside a folder of a kind trioman writes (a subject, an avatar, ...: :func:`known_kind`): a
+    command never writes over or into what it reads, nor into another output (None entries are skipped). Links
+    are resolved first."""
     target = Path(path).resolve()
     for given in inputs:
         if given is None:
@@ -223,6 +280,10 @@ def check_not_input(path: PathLike, inputs: Iterable[PathLike | None]) -> None:
             raise ValueError(f"{path}: holds the input {given}; write the output to another folder")
         if source in target.parents:
             raise ValueError(f"{path}: lies inside the input {given}; write the output outside it")
+    inside = _enclosing(target)
+    if inside is not None:
+        folder, kind = inside
+        raise ValueError(f"{path}: lies inside {folder}, a trioman {kind.name} folder; write the output outside it")
 
 
 def check_folder_target(path: PathLike, overwrite: bool, kind: FolderKind | None = None,
@@ -241,19 +302,38 @@ def check_folder_target(path: PathLike, overwrite: bool, kind: FolderKind | None
     if not path.is_dir() or not any(path.iterdir()):
         return
     if kind is None:
-        raise FileExistsError(f"{path}: folder exists and is not empty (choose another output folder)")
+        other = kind_of(path)
+        what = f" (a trioman {other.name} folder)" if other is not None else ""
+        raise FileExistsError(f"{path}: folder exists and is not empty{what} (choose another output folder)")
     foreign = kind.first_foreign(path)
     if foreign is None:
         if not overwrite:
             raise FileExistsError(f"{path}: folder exists and is not empty (give `overwrite` to replace it)")
         return
-    why = (f"the folder holds no {kind.marker}: not a trioman {kind.name} folder" if not (path / kind.marker).is_file()
+    other = kind_of(path)
+    if other is not None and other is not kind:
+        why = f"it is a trioman {other.name} folder ({other.marker}), not a {kind.name} folder"
+        raise FileExistsError(f"{path}: {why}; refusing to replace it (choose another output folder)")
+    why = (f"the folder holds no {kind.marker}: not a trioman {kind.name} folder" if not (path / kind.marker).exists()
            else f"not part of a trioman {kind.name} folder")
     if overwrite:
         raise FileExistsError(f"overwrite: {foreign} was not written by trioman ({why}); refusing to replace {path} "
                               f"(move it away, or choose another output folder)")
     raise FileExistsError(f"{path}: folder exists and holds {foreign}, which trioman did not write ({why}); choose "
                           f"another output folder")
+
+
+def remove_own(path: PathLike, kind: FolderKind) -> None:
+    """Remove the folder ``path`` when it is an earlier output of ``kind`` holding nothing else (what
+    ``overwrite`` may replace, :func:`check_folder_target`; a FileExistsError names anything foreign); nothing
+    there: nothing to do. For a command that always starts a fresh output in a fixed sub-folder of its own."""
+    path = Path(path)
+    if path.is_symlink():
+        raise FileExistsError(f"{path}: is a link, which trioman never writes there; refusing to remove it")
+    if not path.exists():
+        return
+    check_folder_target(path, True, kind)
+    shutil.rmtree(path)
 
 
 @contextlib.contextmanager
@@ -400,8 +480,11 @@ def read_png(path: PathLike, mode: str | None = None) -> np.ndarray:
     if mode not in (None, "rgb", "gray"):
         raise ValueError(f"mode: expected None, 'rgb' or 'gray', got {mode!r}")
     path = Path(path)
-    if not path.is_file():
+    problem = not_a_file(path)
+    if problem == "missing file":
         raise FileNotFoundError(f"{path}: image file not found")
+    if problem is not None:
+        raise ValueError(f"{path}: {problem}")
     data = np.fromfile(path, dtype=np.uint8)  # works for non-ASCII paths, unlike cv2.imread
     damage = _png_damage(data)
     if damage:

@@ -14,7 +14,7 @@ from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
-from trioman.runtime.formats.common import FormatError
+from trioman.runtime.formats.common import FormatError, require_file
 
 META_PREFIX = "trioman."
 FORMAT = "trioman-onnx"
@@ -50,8 +50,7 @@ def _session(path: Path, optimization: str, threads: int | None) -> Any:
         raise ValueError(f"optimization: expected one of {OPTIMIZATION_LEVELS}, got {optimization!r}")
     if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
         raise ValueError(f"threads: expected a positive integer or None (onnxruntime's default), got {threads!r}")
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file" + (" (a folder)" if path.is_dir() else ""))
+    require_file(path)
     levels = {
         "disable": ort.GraphOptimizationLevel.ORT_DISABLE_ALL,
         "basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trioman.runtime.formats.common import FormatError
+from trioman.runtime.formats.common import FormatError, require_file
 from trioman.runtime.gaussians import Gaussians
 from trioman.runtime.image_io import atomic_write_bytes
 
@@ -82,8 +82,7 @@ def read_ply(path: str | os.PathLike) -> Gaussians:
     """Read a 3DGS .ply -> activated Gaussians (float32): exp scales, sigmoid opacities, unit quats
     (zero quaternion -> identity), colours clipped to [0, 1]. Raises FormatError naming file and field."""
     path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     raw = path.read_bytes()
     end = raw.find(b"end_header\n", 0, _MAX_HEADER)
     if not raw.startswith(b"ply\n") or end < 0:

@@ -68,9 +68,9 @@ def _write(path: Path, record: Mapping[str, Any]) -> None:
     atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
 
 
-def _lock(path: Path, shard: Shard) -> None:
-    """Create the shard's lock file exclusively (one job of a shard at a time, on every machine sharing the
-    folder), or refuse naming who holds it."""
+def _lock(path: Path, what: str) -> None:
+    """Create the lock file ``path`` exclusively (one writer at a time, on every machine sharing the folder), or
+    refuse: ``what`` starts the message (``shard 0/2: another job of this shard``)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -82,11 +82,21 @@ def _lock(path: Path, shard: Shard) -> None:
         except (OSError, ValueError, KeyError, TypeError):
             who, gone = "being started", False
         state = "was killed (that process is gone)" if gone else "is running"
-        raise ValueError(f"shard {shard}: another job of this shard {state} ({who}; lock {path}); "
+        raise ValueError(f"{what} {state} ({who}; lock {path}); "
                          + (f"remove {path} and run it again" if gone else
                             f"wait for it, or if it was killed, remove {path} and run it again")) from None
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}) + "\n")
+
+
+@contextmanager
+def writer_lock(path: Path, what: str) -> Iterator[None]:
+    """Hold the lock file ``path`` while the block runs (``_lock``; ``what`` names the writer in a refusal)."""
+    _lock(path, what)
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)
 
 
 def _alive(pid: int) -> bool:
@@ -106,9 +116,7 @@ def shard_run(out: str | Path, shard: Shard, settings: Mapping[str, Any], items:
     ``items`` names what the shard owns. The shard's lock (``I-of-N.lock``, an exclusive create) is held
     throughout: a second job of the same shard is refused before it writes anything."""
     path = shard.record_path(Path(out))
-    lock = path.with_suffix(".lock")
-    _lock(lock, shard)
-    try:
+    with writer_lock(path.with_suffix(".lock"), f"shard {shard}: another job of this shard"):
         record = {"shard": str(shard), "settings": settings, "items": list(items)}
         _write(path, {**record, "status": "running"})
         try:
@@ -117,8 +125,6 @@ def shard_run(out: str | Path, shard: Shard, settings: Mapping[str, Any], items:
             _write(path, {**record, "status": "failed", "error": f"{type(err).__name__}: {err}"})
             raise
         _write(path, {**record, "status": "complete"})
-    finally:
-        lock.unlink(missing_ok=True)
 
 
 # augment keeps an interrupted shard's finished frames only with --resume (synth-corpus skips finished subjects

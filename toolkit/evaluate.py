@@ -14,7 +14,7 @@ import torch
 from tqdm import tqdm
 
 from trioman.runtime.formats import Subject, load_subject
-from trioman.runtime.image_io import atomic_write_text, write_png, write_video
+from trioman.runtime.image_io import atomic_write_text, check_not_input, kind_of, write_png, write_video
 from trioman.runtime.preview import contact_sheet
 from trioman.toolkit.avatar.model import GaussianAvatar, PoseFree
 from trioman.toolkit.cpu import flush_denormals
@@ -111,6 +111,14 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
     if poses not in POSES:
         raise ValueError(f"poses: expected one of {list(POSES)}, got {poses!r}")
     model, subject, cfg, step = load_run(run)
+    out = Path(out) if out else Path(run) / f"eval_{split}"
+    try:  # the report goes beside what it measures, never into the subject (nor another output)
+        check_not_input(out, [subject.root])
+    except ValueError as err:
+        raise ValueError(f"out: {err}") from None
+    other = kind_of(out)
+    if other is not None:
+        raise ValueError(f"out: {out} is a trioman {other.name} folder; write the report to another folder")
     if poses == "true" and subject.poses_true is None:
         raise ValueError(f"poses: {subject.root} records no ground-truth poses (poses_true); evaluate at the stored poses")
     requested = poses
@@ -128,7 +136,6 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
         bar.close()
         poses = (f"{'stored' if corrected is None else 'stored, corrected by the run'}, refitted to each frame "
                  f"({refit.steps} steps at {refit.scale:g} of the size)")
-    out = Path(out) if out else Path(run) / f"eval_{split}"
     out.mkdir(parents=True, exist_ok=True)
     idx = subject.indices(split)
     if len(idx) == 0:

@@ -17,12 +17,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from trioman.runtime.image_io import atomic_write_text
+from trioman.runtime.image_io import FolderKind, atomic_write_text
 from trioman.toolkit.corpus import triplet_paths
 from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
 from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, examiner_loop, pair_auroc
 from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, refiner_loop
-from trioman.toolkit.loops.checkpoint import latest_checkpoint
+from trioman.toolkit.loops.checkpoint import CHECKPOINTS, SELECTED, latest_checkpoint
 from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
 from trioman.toolkit.triplets import TripletSet, Tuples
 
@@ -44,6 +44,9 @@ def examiner_batch(t: Tuples) -> ExaminerBatch:
 
 # Refiner sizes: "compact" (narrower widths, for CPU training; docs/findings.md, "Refiner"), "default"
 # is RefinerConfig's.
+FIT_JSON = "fit.json"  # run/fit.json: what fit_refiner / fit_examiner trained, on what, how long
+# a fit_refiner / fit_examiner run: what a command that starts fresh models in a fixed folder may remove
+MODEL_RUN = FolderKind("Refiner or Examiner run", FIT_JSON, files=(FIT_JSON, SELECTED), folders=((CHECKPOINTS, ("ckpt_*.pt",)),))
 REFINER_SIZES = {"compact": dict(vae_widths=(16, 32, 48), unet_widths=(32, 64, 64)), "default": {}}
 
 
@@ -162,7 +165,7 @@ def _finish(run: Path, info: dict, previous: dict | None, ranks: Ranks) -> dict:
         return previous
     if ranks.main:
         run.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(run / "fit.json", json.dumps(info, indent=2) + "\n")
+        atomic_write_text(run / FIT_JSON, json.dumps(info, indent=2) + "\n")
     barrier()
     return info
 
@@ -176,7 +179,7 @@ def _same_fit(old: dict, new: dict) -> bool:
 def _earlier_seconds(run: Path, fit: dict) -> float:
     """Wall time already spent on ``run`` by a call with the same fit but fewer steps (a run being
     resumed to more steps), so fit.json keeps the total; 0 for a new run."""
-    path = run / "fit.json"
+    path = run / FIT_JSON
     if not path.is_file():
         return 0.0
     old = json.loads(path.read_text())
@@ -192,9 +195,9 @@ def _resume_step(run: Path) -> int:
 
 def _previous(run: Path, steps: int) -> dict | None:
     """fit.json of a complete run (its last checkpoint reached ``steps``), else None."""
-    if not (run / "fit.json").is_file() or _resume_step(run) < steps:
+    if not (run / FIT_JSON).is_file() or _resume_step(run) < steps:
         return None
-    return json.loads((run / "fit.json").read_text())
+    return json.loads((run / FIT_JSON).read_text())
 
 
 def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, conditions: str = TrainRefinerOptions.conditions,

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from trioman.runtime.formats.common import FormatError, load_npz
-from trioman.runtime.image_io import atomic_path
+from trioman.runtime.image_io import atomic_path, check_not_input
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.rotations import axis_angle_to_matrix
 
@@ -87,6 +87,14 @@ def aligned_references(subject, coarse: np.ndarray, seed: int = 0,
     return aligned, valid, source
 
 
+def _check_out(out: str | Path, run: str | Path, subject) -> None:
+    """ValueError (``out: ...``) when the triplets file would land in the run, its subject or another output."""
+    try:
+        check_not_input(out, [run, subject.root])
+    except ValueError as err:
+        raise ValueError(f"out: {err}") from None
+
+
 def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> Path:
     """Render coarse frames and normal maps for every frame of the run's subject into ``out`` (.npz)."""
     import torch
@@ -95,6 +103,7 @@ def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> P
     from trioman.toolkit.evaluate import load_run, render_frame
 
     model, subject, _, step = load_run(run)
+    _check_out(out, run, subject)
     bg = subject.background
     n, H, W = subject.num_frames, subject.height, subject.width
     arrays = {k: np.empty((n, H, W, 3), np.uint8) for k in ("gt", "coarse", "normal")}
@@ -139,6 +148,7 @@ def build_draw_triplets(run: str | Path, out: str | Path, draws: int = 2, seed: 
     from trioman.toolkit.train.augmentation import AugmentConfig, render_candidate
 
     model, subject, _, step = load_run(run)
+    _check_out(out, run, subject)
     truth = TruthRenderer(subject)
     bg, H, W = subject.background.astype(np.float32), subject.height, subject.width
     train = subject.indices("train")

@@ -3,6 +3,7 @@ the source frames (one process, one shard, or the merge of the shards)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -25,7 +26,7 @@ from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, SUBJECT_JSON,
 from trioman.runtime.generator import GeneratorConfig, joint_groups
 from trioman.runtime.image_io import atomic_write_text, check_not_input, is_temp_name, remove_temp_files
 from trioman.runtime.pseudo_gt import MASKS, PseudoConfig
-from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
+from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run, writer_lock
 
 
 def augment(
@@ -94,45 +95,50 @@ def augment(
         check_not_input(out, [subject_path, avatar_path, refiner_path, examiner_path])
     except ValueError as err:
         raise ValueError(f"out: {err}") from None
-    top, out = out, (out / SHARDS_DIR / shard.name if shard is not None else out)
-    had_output = False if merge else check_out(out, resume, overwrite)
+    # one writer per output: a second run into the same folder is refused before it reads or removes anything
+    # (shard jobs hold their shard's lock instead; the lock lies beside the output, which it would otherwise fill)
+    lock = (writer_lock(out.parent / f".{out.name}.augment.lock", f"out: another `augment` run into {out}")
+            if shard is None and not merge else contextlib.nullcontext())
+    with lock:
+        top, out = out, (out / SHARDS_DIR / shard.name if shard is not None else out)
+        had_output = False if merge else check_out(out, resume, overwrite)
 
-    subj = load_subject(subject_path)
-    earlier = written_files(out, subj.frame_names.tolist()) if had_output and overwrite else []  # refused first
-    views_of = subj.indices("train" if frames == "train" else None)  # the frames real pixels are carried from
-    if len(views_of) == 0:
-        raise ValueError(f"frames: subject {subject_path} has no {frames!r} frames")
-    selection = views_of[:limit] if limit is not None else views_of
-    av = load_avatar(avatar_path)
-    check_joints(av, subj, avatar_path)
-    ref_model = None if refiner_path is None else RefinerModel(refiner_path, threads=threads)
-    H, W = subj.height, subj.width
-    if ref_model is not None and tuple(ref_model.size) != (H, W):
-        h, w = ref_model.size
-        how = (f"trioman export onnx --refiner CKPT --size {H}" if H == W
-               else f"export_refiner_onnx(CKPT, PATH, size=({H}, {W}))")
-        raise ValueError(f"refiner: {refiner_path} takes {h}x{w} (H x W) images, but the subject's images are "
-                         f"{H}x{W}; export the Refiner at the subject's size ({how})")
-    ex_model = None if examiner_path is None else ExaminerModel(examiner_path, threads=threads)
-    kind = "aligned" if ref_model is None else "refined" if ex_model is None else "examined"
-    pseudo = PseudoConfig(kind=kind, mask=mask, threshold=threshold, keep_carried=keep_carried)
-    settings = run_settings(subj, av, avatar_path, ref_model, refiner_path, ex_model, examiner_path, seed, per_frame,
-                            threshold, frames, gen_cfg, mask, keep_carried)
-    if texture:
-        settings["texture"] = texture
-    if had_output and resume:
-        check_resume(out, settings)
-    names = [str(subj.frame_names[i]) for i in selection]
-    if merge:
-        return merge_shards(out, subj, selection, check_shards(out, {**settings, "limit": limit}), settings,
-                            ex_model is not None, threshold)
-    step = Step(av, ref_model, ex_model, make_aligner(subj, views_of, pseudo, ref_model, texture), pseudo,
-                {int(i): p for p, i in enumerate(views_of)}, seed, per_frame, gen_cfg)
-    if shard is not None:
-        with shard_run(top, shard, {**settings, "limit": limit}, shard.take(names)):
-            _run(out, subj, shard.take(selection.tolist()), step, earlier, had_output, resume, settings, progress)
-        return json.loads(shard.record_path(top).read_text(encoding="utf-8"))
-    return _run(out, subj, selection.tolist(), step, earlier, had_output, resume, settings, progress, complete=True)
+        subj = load_subject(subject_path)
+        earlier = written_files(out, subj.frame_names.tolist()) if had_output and overwrite else []  # refused first
+        views_of = subj.indices("train" if frames == "train" else None)  # the frames real pixels are carried from
+        if len(views_of) == 0:
+            raise ValueError(f"frames: subject {subject_path} has no {frames!r} frames")
+        selection = views_of[:limit] if limit is not None else views_of
+        av = load_avatar(avatar_path)
+        check_joints(av, subj, avatar_path)
+        ref_model = None if refiner_path is None else RefinerModel(refiner_path, threads=threads)
+        H, W = subj.height, subj.width
+        if ref_model is not None and tuple(ref_model.size) != (H, W):
+            h, w = ref_model.size
+            how = (f"trioman export onnx --refiner CKPT --size {H}" if H == W
+                   else f"export_refiner_onnx(CKPT, PATH, size=({H}, {W}))")
+            raise ValueError(f"refiner: {refiner_path} takes {h}x{w} (H x W) images, but the subject's images are "
+                             f"{H}x{W}; export the Refiner at the subject's size ({how})")
+        ex_model = None if examiner_path is None else ExaminerModel(examiner_path, threads=threads)
+        kind = "aligned" if ref_model is None else "refined" if ex_model is None else "examined"
+        pseudo = PseudoConfig(kind=kind, mask=mask, threshold=threshold, keep_carried=keep_carried)
+        settings = run_settings(subj, av, avatar_path, ref_model, refiner_path, ex_model, examiner_path, seed, per_frame,
+                                threshold, frames, gen_cfg, mask, keep_carried)
+        if texture:
+            settings["texture"] = texture
+        if had_output and resume:
+            check_resume(out, settings)
+        names = [str(subj.frame_names[i]) for i in selection]
+        if merge:
+            return merge_shards(out, subj, selection, check_shards(out, {**settings, "limit": limit}), settings,
+                                ex_model is not None, threshold)
+        step = Step(av, ref_model, ex_model, make_aligner(subj, views_of, pseudo, ref_model, texture), pseudo,
+                    {int(i): p for p, i in enumerate(views_of)}, seed, per_frame, gen_cfg)
+        if shard is not None:
+            with shard_run(top, shard, {**settings, "limit": limit}, shard.take(names)):
+                _run(out, subj, shard.take(selection.tolist()), step, earlier, had_output, resume, settings, progress)
+            return json.loads(shard.record_path(top).read_text(encoding="utf-8"))
+        return _run(out, subj, selection.tolist(), step, earlier, had_output, resume, settings, progress, complete=True)
 
 
 def _run(out: Path, subj: Any, selection: list[int], step: Step, earlier: list[Path], had_output: bool, resume: bool,
@@ -162,16 +168,22 @@ def _run(out: Path, subj: Any, selection: list[int], step: Step, earlier: list[P
     start = time.perf_counter()
     bar = tqdm(selection, desc="augment", unit="frame", disable=None if progress else True)
     accepted = 0
-    for i in bar:
-        name = str(subj.frame_names[i])
-        rec = read_record(out, name, i) if had_output else None
-        if rec is None:
-            rec = augment_frame(subj, i, step, out, groups)
-            computed += 1
-        records.append(rec)
-        accepted += len(rec["frames"])
-        bar.set_postfix(kept=accepted)
-    bar.close()
+    try:
+        for i in bar:
+            name = str(subj.frame_names[i])
+            rec = read_record(out, name, i) if had_output else None
+            if rec is None:
+                rec = augment_frame(subj, i, step, out, groups)
+                computed += 1
+            records.append(rec)
+            accepted += len(rec["frames"])
+            bar.set_postfix(kept=accepted)
+    except BaseException as err:  # augment.json says the run stopped, and why (the finished frames stay: --resume)
+        with contextlib.suppress(OSError):  # a full disk: the error that stopped the run is the one to report
+            atomic_write_text(out / AUGMENT_JSON, dump({**header, "status": "failed", "error": f"{type(err).__name__}: {err}"}))
+        raise
+    finally:
+        bar.close()
     seconds = time.perf_counter() - start
     if not complete:
         return None

@@ -33,9 +33,10 @@ from trioman.runtime.formats.common import (
     load_json,
     load_npz,
     plain_json,
+    require_file,
     write_npz,
 )
-from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_target, write_synced
+from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_target, known_kind, write_synced
 from trioman.runtime.skeleton import Skeleton
 
 AVATAR_FORMAT = "trioman-avatar"
@@ -55,8 +56,8 @@ _FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_qu
 _INDEX_FIELDS = ("skin_indices", "pose_indices")
 _POSE_CARRY = ("pose_indices", "pose_weights")
 # What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
-AVATAR_FOLDER = FolderKind("avatar", AVATAR_JSON, files=(AVATAR_JSON, GAUSSIANS_NPZ, SKELETON_NPZ, POSE_ONNX, CANONICAL_PLY,
-                                                     "posed_*.ply"))
+AVATAR_FOLDER = known_kind(FolderKind("avatar", AVATAR_JSON, files=(AVATAR_JSON, GAUSSIANS_NPZ, SKELETON_NPZ, POSE_ONNX, CANONICAL_PLY,
+                                                     "posed_*.ply"), format=AVATAR_FORMAT))
 _EXTRA_PLY = re.compile(r"posed_[A-Za-z0-9_.\-]{1,100}\.ply")  # fullmatch
 
 
@@ -246,13 +247,11 @@ def load_avatar(path: str | os.PathLike) -> Avatar:
         raise FormatError(f"{root}: not a folder (an avatar is a folder with {AVATAR_JSON}, {GAUSSIANS_NPZ}, "
                           f"{SKELETON_NPZ}, {CANONICAL_PLY} and optionally {POSE_ONNX})")
     meta_path = root / AVATAR_JSON
-    if not meta_path.is_file():
-        raise FormatError(f"{meta_path}: missing file (is this a TrioMan avatar folder?)")
+    require_file(meta_path, "missing file (is this a TrioMan avatar folder?)")
     meta = _check_meta(load_json(meta_path), meta_path)
     for name, entry in meta["files"].items():
         f = root / name
-        if not f.is_file():
-            raise FormatError(f"{f}: missing file (listed in {AVATAR_JSON})")
+        require_file(f, f"missing file (listed in {AVATAR_JSON})")
         size = f.stat().st_size
         if size != entry["bytes"]:
             raise FormatError(f"{f}: {size} bytes, but {AVATAR_JSON} lists {entry['bytes']} (truncated or modified file)")

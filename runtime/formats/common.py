@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import write_synced
+from trioman.runtime.image_io import not_a_file, write_synced
 
 
 class FormatError(ValueError):
@@ -45,8 +45,7 @@ def read_json(path: str | os.PathLike, missing: str = "missing file") -> Any:
     """The one reader of a JSON file the user gives: NaN and Infinity refused, and a missing, unreadable,
     malformed or too deeply nested file (Python's parser recurses) is a FormatError naming it."""
     path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: {missing}")
+    require_file(path, missing)
 
     def reject_constant(name: str) -> Any:
         raise ValueError(f"{name} is not valid JSON")
@@ -57,6 +56,14 @@ def read_json(path: str | os.PathLike, missing: str = "missing file") -> Any:
         raise FormatError(f"{path}: malformed JSON: {err}") from None
     except RecursionError:
         raise FormatError(f"{path}: malformed JSON: nested too deeply to read") from None
+
+
+def require_file(path: str | os.PathLike, missing: str = "missing file") -> None:
+    """FormatError naming ``path`` unless it is a regular file: ``missing`` when nothing is there, else what is
+    (a folder, a FIFO or device, a broken link: ``image_io.not_a_file``)."""
+    problem = not_a_file(path)
+    if problem is not None:
+        raise FormatError(f"{path}: {missing if problem == 'missing file' else problem}")
 
 
 def load_json(path: Path) -> Any:
@@ -70,8 +77,7 @@ def load_npz(path: Path, known: Iterable[str] | None = None, max_bytes: int | No
     ``known``: the array names the format has; another one is refused before any array is read.
     ``max_bytes``: the most an array may take once decompressed (its zip entry's size), checked before
     reading, so a small archive cannot expand into gigabytes."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     with open(path, "rb") as f:
         head = f.read(4)
     if head == b"\x93NUM":

@@ -20,6 +20,7 @@ from trioman.runtime.image_io import (
     atomic_folder,
     check_folder_target,
     encode_png,
+    known_kind,
     png_header,
     read_png,
     write_synced,
@@ -56,8 +57,8 @@ LAST_ROW_TOL = 1e-6
 CONTACT_SHEET_PNG = "contact_sheet.png"  # written beside a subject by trioman synth
 FIT_REPORT_FILES = ("fit.json", "fit.md", "fit_overlay.png", "fit_overlay.mp4")  # written beside a subject by trioman fit
 # What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
-SUBJECT_FOLDER = FolderKind("subject", SUBJECT_JSON, files=(SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, CONTACT_SHEET_PNG, *FIT_REPORT_FILES),
-                            folders=((IMAGES_DIR, ("*.png",)), (MASKS_DIR, ("*.png",))))
+SUBJECT_FOLDER = known_kind(FolderKind("subject", SUBJECT_JSON, files=(SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, CONTACT_SHEET_PNG, *FIT_REPORT_FILES),
+                            folders=((IMAGES_DIR, ("*.png",)), (MASKS_DIR, ("*.png",))), format=SUBJECT_FORMAT))
 
 _FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,199}")  # fullmatch: "$" would pass a final newline
 _FLOAT_ARRAYS = ("poses", "trans", "K", "viewmat")

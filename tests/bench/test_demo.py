@@ -22,8 +22,9 @@ PSNR_LINE = re.compile(r"^demo: test PSNR \(masked\): baseline (\S+) dB, augment
 
 def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--size", "64", "--frames", "12", "--iterations", "30",
-                 "--model-steps", "5", "--augment-frames", "2", "--quiet"]) == 0
+    argv = ["demo", "--out", str(out), "--size", "64", "--frames", "12", "--iterations", "30", "--model-steps", "5",
+            "--augment-frames", "2", "--quiet"]
+    assert main(argv) == 0
     printed = capsys.readouterr().out
     stages = STAGE_LINE.findall(printed)
     assert tuple(name for name, _, _ in stages) == STAGES
@@ -53,3 +54,17 @@ def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
     grid = read_png(out / "novel_views.png")  # a row per test frame: GT | baseline | augmented, 64 px each
     assert grid.shape[1] > 3 * 64 and grid.shape[0] > 4 * 64
     assert load_subject(out / "subject").meta["generator"]["coverage"] == 0.33  # the regime the gain was measured in
+
+    # issue 41: a rerun starts its runs afresh, removing the demo's own and nothing else
+    from trioman.runtime.image_io import check_folder_target
+    from trioman.toolkit.model_training import MODEL_RUN
+    from trioman.toolkit.train.loop import RUN_FOLDER
+
+    for folder, kind in (("run", RUN_FOLDER), ("run_augmented", RUN_FOLDER), ("models/refiner", MODEL_RUN),
+                         ("models/examiner", MODEL_RUN)):
+        check_folder_target(out / folder, True, kind)  # what a rerun removes: the demo's own output, whole
+    (out / "run" / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main(argv) == 1
+    assert f"{out / 'run' / 'notes.txt'} was not written by trioman" in capsys.readouterr().err
+    assert (out / "run" / "notes.txt").read_text() == "mine" and (out / "run" / "config.json").is_file()

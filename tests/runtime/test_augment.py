@@ -515,3 +515,33 @@ def test_a_link_inside_an_earlier_output_is_refused_before_anything_is_written(i
         with pytest.raises(FileExistsError, match=rf"^out: {out / 'images'} is a link, which trioman augment never writes"):
             run(inputs, out, limit=2, **{flag: True})
     assert {p: p.read_bytes() for p in outside.iterdir()} == before and (out / "images").is_symlink()
+
+
+def test_a_second_run_into_the_same_output_is_refused_while_the_first_writes(inputs, tmp_path):
+    # issue 41, D5: two unsharded runs into one --out both exited 0, one result silently replaced
+    import os
+    import socket
+    import time
+
+    out = tmp_path / "busy"
+    lock = tmp_path / ".busy.augment.lock"
+    lock.write_text(json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}))
+    with pytest.raises(ValueError, match=rf"^out: another `augment` run into {out} is running \(pid {os.getpid()}"):
+        run(inputs, out, overwrite=True)
+    assert not out.exists() and lock.is_file()  # nothing written; the holder's lock left to it
+    lock.unlink()
+    run(inputs, out)
+    assert not lock.exists()  # released when the run ends
+
+
+def test_a_run_that_fails_says_so_in_augment_json(inputs, tmp_path, monkeypatch):
+    # issue 41, U4: a run stopped by an error left augment.json "running"
+    def broken(*args, **kw):
+        raise RuntimeError("the Refiner's session died")
+
+    monkeypatch.setattr("trioman.runtime.augment.run.augment_frame", broken)
+    with pytest.raises(RuntimeError):
+        run(inputs, tmp_path / "o")
+    record = json.loads((tmp_path / "o" / AUGMENT_JSON).read_text())
+    assert (record["status"], record["error"]) == ("failed", "RuntimeError: the Refiner's session died")
+    assert not (tmp_path / ".o.augment.lock").exists()

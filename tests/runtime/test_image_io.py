@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import os
+import re
 
 import cv2
 import numpy as np
@@ -403,3 +405,84 @@ def test_atomic_folder_removes_what_an_interrupted_write_of_the_same_output_left
         (tmp / "a.txt").write_text("new")
     assert not left.exists() and all(p.is_dir() for p in kept)
     assert (tmp_path / "out" / "a.txt").read_text() == "new"
+
+
+def _marked(folder, kind):
+    """``folder`` with ``kind``'s marker, as trioman writes it (its JSON format)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / kind.marker).write_text(json.dumps({"format": kind.format}))
+    return folder
+
+
+@pytest.mark.parametrize("out", ["subject/images/000000.png", "subject/extra", "avatar/gaussians.npz", "link/x.png"])
+def test_no_output_goes_inside_a_folder_trioman_wrote(tmp_path, out):
+    # issue 41, D2: `render --out SUBJECT/images/000000.png` replaced a real frame of a subject it did not read
+    from trioman.runtime.formats.avatar import AVATAR_FOLDER
+    from trioman.runtime.formats.subject import SUBJECT_FOLDER
+
+    _marked(_folder(tmp_path / "subject", ["images/000000.png"]), SUBJECT_FOLDER)
+    _marked(_folder(tmp_path / "avatar", []), AVATAR_FOLDER)
+    _folder(tmp_path / "other", ["subject.json"])  # another program's file of that name: not a subject folder
+    (tmp_path / "link").symlink_to(tmp_path / "subject" / "images")  # a link is followed before the check
+    folder = "avatar" if out.startswith("avatar") else "subject"  # the link leads into the subject
+    with pytest.raises(ValueError, match=rf"^{tmp_path / out}: lies inside {tmp_path / folder}, a trioman {folder} folder"):
+        image_io.check_not_input(tmp_path / out, [])
+    image_io.check_not_input(tmp_path / "elsewhere" / "x.png", [])  # beside them: fine
+    image_io.check_not_input(tmp_path / "other" / "x.png", [])
+
+
+def test_a_refused_folder_of_another_kind_is_named_for_its_kind(tmp_path):
+    # issue 41, U1: "was not written by trioman" was said of trioman's own outputs of another kind
+    from trioman.runtime.formats.avatar import AVATAR_FOLDER
+    from trioman.runtime.formats.subject import SUBJECT_FOLDER
+
+    avatar = _marked(_folder(tmp_path / "avatar", ["gaussians.npz"]), AVATAR_FOLDER)
+    with pytest.raises(FileExistsError, match=r"it is a trioman avatar folder \(avatar.json\), not a subject folder"):
+        image_io.check_folder_target(avatar, True, SUBJECT_FOLDER)
+    with pytest.raises(FileExistsError, match=r"folder exists and is not empty \(a trioman avatar folder\)"):
+        image_io.check_folder_target(avatar, False)
+    assert image_io.kind_of(avatar) is AVATAR_FOLDER and image_io.kind_of(tmp_path) is None
+
+
+def test_remove_own_removes_an_earlier_output_of_its_kind_and_nothing_else(tmp_path):
+    # issue 41: the demo and the benchmarks removed fixed sub-folders of OUT with no look at what they held
+    own = _folder(tmp_path / "own", ["thing.json", "data.npz", "images/0.png"])
+    image_io.remove_own(own, SUBJECTISH)
+    assert not own.exists()
+    image_io.remove_own(tmp_path / "absent", SUBJECTISH)  # nothing there: nothing to do
+    mixed = _folder(tmp_path / "mixed", ["thing.json", "images/0.png", "thesis.tex"])
+    with pytest.raises(FileExistsError, match=rf"{mixed / 'thesis.tex'} was not written by trioman"):
+        image_io.remove_own(mixed, SUBJECTISH)
+    assert sorted(p.name for p in mixed.rglob("*")) == ["0.png", "images", "thesis.tex", "thing.json"]
+    (tmp_path / "link").symlink_to(_folder(tmp_path / "elsewhere", ["thing.json"]))
+    with pytest.raises(FileExistsError, match="is a link"):
+        image_io.remove_own(tmp_path / "link", SUBJECTISH)
+    assert (tmp_path / "elsewhere" / "thing.json").is_file()
+
+
+def test_a_folder_pattern_of_a_kind_matches_its_sub_folders(tmp_path):
+    kind = image_io.FolderKind("run", "run.json", files=("run.json",), folders=(("eval_*", ("*.csv",)),))
+    assert kind.first_foreign(_folder(tmp_path / "a", ["run.json", "eval_test/m.csv", "eval_x_0000010/m.csv"])) is None
+    b = _folder(tmp_path / "b", ["run.json", "evaluation/m.csv"])
+    assert kind.first_foreign(b) == b / "evaluation"
+
+
+@pytest.mark.parametrize("make, said", [
+    (lambda p: os.mkfifo(p), "not a regular file (a FIFO, socket or device)"),
+    (lambda p: os.symlink("/dev/zero", p), "not a regular file (a FIFO, socket or device)"),
+    (lambda p: os.mkdir(p), "a folder, not a file"),
+    (lambda p: os.symlink(p.parent / "gone", p), "a broken link"),
+], ids=["fifo", "dev-zero", "folder", "broken-link"])
+def test_what_is_there_instead_of_a_file_is_said(tmp_path, make, said):
+    # issue 41, U5: a FIFO or a link to /dev/zero was reported as a "missing file" (and a FIFO read would block)
+    from trioman.runtime.formats.common import FormatError, load_npz, read_json
+
+    path = tmp_path / "x"
+    make(path)
+    assert image_io.not_a_file(path) == said
+    for read in (read_json, load_npz):
+        with pytest.raises(FormatError, match=rf"^{path}: {re.escape(said)}$"):
+            read(path)
+    with pytest.raises(ValueError, match=rf"^{path}: {re.escape(said)}$"):
+        read_png(path)
+    assert image_io.not_a_file(tmp_path / "absent") == "missing file"

@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from trioman.runtime.formats import FormatError, Subject, save_subject
-from trioman.runtime.formats.common import read_json as _read_json
+from trioman.runtime.formats.common import read_json as _read_json, require_file
 from trioman.runtime.formats.subject import SUBJECT_FOLDER
 from trioman.runtime.image_io import check_folder_target, read_png
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
@@ -103,8 +103,7 @@ def focal_array(where: Path, field: str, value: Any) -> np.ndarray:
 
 def read_pickle(path: Path, allow_pickle: bool) -> Any:
     """A pickled file (X-Humans' original fits), only with ``allow_pickle``: unpickling runs code."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     if not allow_pickle:
         raise FormatError(f"{path}: a pickled file; reading it runs code from the file, so it is read only with "
                           f"`allow_pickle` (give it for files you trust)")
@@ -126,8 +125,7 @@ def check_target(out: str | Path, overwrite: bool, inputs: list[Path]) -> None:
 
 def read_npy(path: Path) -> np.ndarray:
     """One array of a .npy file, without pickle."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     try:
         return np.load(path, allow_pickle=False)
     except Exception as err:  # numpy raises several types; all mean unreadable
@@ -144,8 +142,7 @@ def pelvis_per_beta(model_dir: str | Path, gender: str, num_betas: int) -> np.nd
 
 def read_npz(path: Path) -> dict[str, np.ndarray]:
     """All arrays of an .npz, without pickle."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     try:
         with np.load(path, allow_pickle=False) as archive:
             return {k: archive[k] for k in archive.files}
@@ -243,8 +240,7 @@ def images_by_index(folder: Path, what: str) -> dict[int, Path]:
 
 def read_split_list(path: Path) -> list[int]:
     """A split list (``00012.png`` or ``12`` per line) -> frame numbers; a frame listed twice -> FormatError."""
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     first_line: dict[int, int] = {}
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if line.strip():
@@ -293,8 +289,7 @@ def read_colmap(sparse: Path) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[n
 
 
 def _lines(path: Path) -> list[str]:
-    if not path.is_file():
-        raise FormatError(f"{path}: missing file")
+    require_file(path)
     return [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 

@@ -11,10 +11,13 @@ from typing import Any
 
 import torch
 
-from trioman.runtime.image_io import atomic_write_bytes
+from trioman.runtime.image_io import FolderKind, atomic_write_bytes
 
 _NAME = re.compile(r"ckpt_(\d{7})\.pt")  # fullmatch
 SELECTED = "selected.pt"  # run/selected.pt: weights chosen by validation (checkpoint format, no optimizer)
+CHECKPOINTS = "checkpoints"  # run/checkpoints/ckpt_<step>.pt
+# A training loop's own run (toolkit/loops: the Refiner's, the Examiner's), what a fresh start may remove
+LOOP_RUN = FolderKind("training loop", CHECKPOINTS, files=(SELECTED,), folders=((CHECKPOINTS, ("ckpt_*.pt",)),))
 
 
 class ConfigMismatch(ValueError):
@@ -63,7 +66,7 @@ def check_config(checkpoint: str | os.PathLike, run_config: dict[str, Any], conf
 
 
 def checkpoint_path(run: Path, step: int) -> Path:
-    return Path(run) / "checkpoints" / f"ckpt_{step:07d}.pt"
+    return Path(run) / CHECKPOINTS / f"ckpt_{step:07d}.pt"
 
 
 def save_atomic(path: Path, state: dict[str, Any]) -> None:
@@ -86,7 +89,7 @@ def save_checkpoint(run: Path, step: int, state: dict[str, Any], keep: int = 2) 
 
 def list_checkpoints(run: Path) -> list[Path]:
     """Finished checkpoints, oldest first (temporary files are ignored)."""
-    folder = Path(run) / "checkpoints"
+    folder = Path(run) / CHECKPOINTS
     if not folder.is_dir():
         return []
     return sorted(p for p in folder.iterdir() if _NAME.fullmatch(p.name))

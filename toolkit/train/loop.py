@@ -14,11 +14,18 @@ import torch
 
 from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
-from trioman.runtime.image_io import atomic_write_text, check_folder_target, check_not_input, naming_os_errors, remove_temp_files
+from trioman.runtime.image_io import (
+    FolderKind,
+    atomic_write_text,
+    check_folder_target,
+    check_not_input,
+    naming_os_errors,
+    remove_temp_files,
+)
 from trioman.runtime.render.timing import stage
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
-from trioman.toolkit.loops.checkpoint import latest_checkpoint
+from trioman.toolkit.loops.checkpoint import CHECKPOINTS, latest_checkpoint
 from trioman.toolkit.loops.guard import StepGuard
 from trioman.toolkit.loops.model_run import ModelRun
 from trioman.toolkit.metrics import psnr, ssim, ssim_map
@@ -32,6 +39,11 @@ from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, 
 LOG_HEADER = "step,seconds,loss,psnr,lr\n"
 TRAIN_LOG = "train_log.csv"  # run/train_log.csv: one line per step
 AUGMENT_JSON = "augment.json"  # run/augment.json: the online augmentation's counts and stage times
+# An avatar's training run, with the evaluations `trioman eval` writes in it by default (eval_<split>, and the
+# benchmarks' eval_<split>_<step>): what a command that starts a fresh run in a fixed folder may remove
+_EVAL_FILES = ("*.md", "*.csv", "*.json", "*.png", "*.mp4")
+RUN_FOLDER = FolderKind("training run", CONFIG_JSON, files=(CONFIG_JSON, TRAIN_LOG, AUGMENT_JSON),
+                        folders=((CHECKPOINTS, ("ckpt_*.pt",)), ("eval_*", _EVAL_FILES)))
 
 
 def render(g: Gaussians, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int,
