@@ -86,6 +86,46 @@ def test_number_accepts_exactly_the_finite_values_of_its_interval(x):
     assert ok == (math.isfinite(x) and 0 <= x < 1)
 
 
+@dataclasses.dataclass(frozen=True)
+class Lists:
+    name: str = option(help="a name")  # no default: a required option
+    frames: tuple[int, ...] = option((), flag="--frame", repeat=True, check=integer(0), help="frames")
+    files: tuple[str, ...] | None = option(None, metavar="FILE", help="files")
+    kinds: tuple[str, ...] = option(("a", "b"), sep=",", choices=("a", "b", "c"), help="kinds")
+
+    def __post_init__(self) -> None:
+        check_options(self)
+
+
+def test_tuple_fields_take_their_items_after_the_flag_once_per_flag_or_split():
+    p = _parser(Lists)
+    args = p.parse_args(["--frame", "3", "--frame", "1", "--files", "x.npz", "y.npz", "--kinds", "c, a,", "--name", "n"])
+    assert given(Lists, args) == {"frames": (3, 1), "files": ("x.npz", "y.npz"), "kinds": ("c", "a"), "name": "n"}
+    assert given(Lists, p.parse_args(["--name", "n"])) == {"name": "n"}
+    assert Lists("n") == Lists("n", frames=(), files=None, kinds=("a", "b"))
+    helps = {a.dest: a.help for a in p._actions}
+    assert helps["kinds"] == "kinds (default a,b)" and helps["frame"] == "frames"  # an empty tuple is not shown
+    with pytest.raises(SystemExit):
+        p.parse_args(["--frame", "x", "--name", "n"])  # each item parsed as the item type
+
+
+def test_a_field_without_a_default_is_a_required_option():
+    assert {a.dest for a in _parser(Lists)._actions if a.required} == {"name"}
+    with pytest.raises(SystemExit):
+        _parser(Lists).parse_args([])
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"frames": (2, -1)}, "frames: must be an integer >= 0, got -1"),
+    ({"kinds": ("a", "d")}, "kinds: expected one of a, b, c, got 'd'"),
+    ({"frames": [1]}, "frames: must be a tuple, got [1]"),
+])
+def test_a_tuple_fields_checks_hold_for_each_item(kw, message):
+    with pytest.raises(ValueError) as err:
+        Lists("n", **kw)
+    assert str(err.value) == message
+
+
 def _specced(module) -> set[str]:
     """The flags declared on the fields of a converted command's configs (its module's ``_configs()``)."""
     return {flag_of(f, spec) for cls in module._configs() for f, spec in declared(cls)}
