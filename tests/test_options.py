@@ -140,12 +140,13 @@ def _flags_of(module) -> dict[str, argparse.Action]:
 # Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
 # (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus, train-refiner, train-examiner and bench's
 # augmentation options are converted.)
-NOT_YET_DECLARED = {"export", "import", "triplets", "animate", "render", "augment", "view", "inspect", "bench"}
+NOT_YET_DECLARED = {"export", "import", "animate", "render", "augment", "view", "bench"}
 # Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
                "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"},
-               "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}, "eval": {"--out", "--quiet"}}
+               "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}, "eval": {"--out", "--quiet"},
+               "triplets": {"--out", "--quiet"}}
 
 
 def test_every_flag_of_a_converted_command_has_a_spec():
@@ -162,12 +163,15 @@ def test_library_and_command_defaults_are_one_value():
     from trioman.toolkit.train.augment_config import AugmentConfig
     from trioman.toolkit.evaluate_config import EvalOptions
     from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
+    from trioman.runtime.inspect import InspectOptions
     from trioman.toolkit.train.config import TrainConfig
+    from trioman.toolkit.triplets_config import TripletsOptions
 
     for cmd_name, specs in (("train", declared(TrainConfig) + declared(AugmentConfig)),
                             ("bench", [(f, s) for f, s in declared(AugmentConfig) if f.name in ABLATION_AUGMENT]),
                             ("train-refiner", declared(TrainRefinerOptions)), ("train-examiner", declared(TrainExaminerOptions)),
-                            ("eval", declared(EvalOptions))):
+                            ("eval", declared(EvalOptions)), ("inspect", declared(InspectOptions)),
+                            ("triplets", declared(TripletsOptions))):
         actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == cmd_name)))
         for field, spec in specs:
             action = actions.get(flag_of(field, spec))
@@ -177,6 +181,33 @@ def test_library_and_command_defaults_are_one_value():
             if spec.default_text is None and field.default is not None:
                 assert action.help.endswith(f"(default {_shown(field.default)})"), (cmd_name, field.name, action.help)
         assert actions, cmd_name
+
+
+def _defaults_agree(fn, options, names: dict[str, str] | None = None) -> None:
+    """Each parameter of ``fn`` with a default that is named as a field of ``options`` (or in ``names``: parameter ->
+    field) defaults to that field's default."""
+    import inspect
+
+    names = {**{f.name: f.name for f, _ in declared(options)}, **(names or {})}
+    params = [p for p in inspect.signature(fn).parameters.values() if p.name in names and p.default is not p.empty]
+    for p in params:
+        assert p.default == getattr(options, names[p.name]), (fn.__name__, p.name, p.default)
+    assert params, fn.__name__
+
+
+def test_the_runtime_functions_default_to_their_commands_options():
+    from trioman.runtime.formats import load_subject
+    from trioman.runtime.inspect import InspectOptions
+
+    _defaults_agree(load_subject, InspectOptions)
+
+
+def test_the_toolkit_functions_default_to_their_commands_options():
+    pytest.importorskip("torch")
+    from trioman.toolkit.triplets import build_draw_triplets
+    from trioman.toolkit.triplets_config import TripletsOptions
+
+    _defaults_agree(build_draw_triplets, TripletsOptions)
 
 
 def _shown(value) -> str:
