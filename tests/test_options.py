@@ -140,13 +140,14 @@ def _flags_of(module) -> dict[str, argparse.Action]:
 # Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
 # (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus, train-refiner, train-examiner and bench's
 # augmentation options are converted.)
-NOT_YET_DECLARED = {"export", "import", "animate", "render", "augment", "view", "bench"}
+NOT_YET_DECLARED = {"export", "import", "augment", "view", "bench"}
 # Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
                "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"},
                "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}, "eval": {"--out", "--quiet"},
-               "triplets": {"--out", "--quiet"}}
+               "triplets": {"--out", "--quiet"}, "animate": {"--motion", "--out", "--frames-dir", "--quiet"},
+               "render": {"--pose", "--out"}}
 
 
 def test_every_flag_of_a_converted_command_has_a_spec():
@@ -163,6 +164,7 @@ def test_library_and_command_defaults_are_one_value():
     from trioman.toolkit.train.augment_config import AugmentConfig
     from trioman.toolkit.evaluate_config import EvalOptions
     from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
+    from trioman.runtime.animate import AnimateOptions, RenderOptions
     from trioman.runtime.inspect import InspectOptions
     from trioman.toolkit.train.config import TrainConfig
     from trioman.toolkit.triplets_config import TripletsOptions
@@ -171,7 +173,8 @@ def test_library_and_command_defaults_are_one_value():
                             ("bench", [(f, s) for f, s in declared(AugmentConfig) if f.name in ABLATION_AUGMENT]),
                             ("train-refiner", declared(TrainRefinerOptions)), ("train-examiner", declared(TrainExaminerOptions)),
                             ("eval", declared(EvalOptions)), ("inspect", declared(InspectOptions)),
-                            ("triplets", declared(TripletsOptions))):
+                            ("triplets", declared(TripletsOptions)), ("animate", declared(AnimateOptions)),
+                            ("render", declared(RenderOptions))):
         actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == cmd_name)))
         for field, spec in specs:
             action = actions.get(flag_of(field, spec))
@@ -196,10 +199,12 @@ def _defaults_agree(fn, options, names: dict[str, str] | None = None) -> None:
 
 
 def test_the_runtime_functions_default_to_their_commands_options():
+    from trioman.runtime.animate import AnimateOptions, animate
     from trioman.runtime.formats import load_subject
     from trioman.runtime.inspect import InspectOptions
 
     _defaults_agree(load_subject, InspectOptions)
+    _defaults_agree(animate, AnimateOptions)
 
 
 def test_the_toolkit_functions_default_to_their_commands_options():
