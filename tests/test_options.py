@@ -141,14 +141,16 @@ def _flags_of(module) -> dict[str, argparse.Action]:
 # Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
 # (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus, train-refiner, train-examiner and bench's
 # augmentation options are converted.)
-NOT_YET_DECLARED = {"export", "import", "augment", "bench"}
+NOT_YET_DECLARED = {"export", "import", "bench"}
 # Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
                "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"},
                "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}, "eval": {"--out", "--quiet"},
                "triplets": {"--out", "--quiet"}, "animate": {"--motion", "--out", "--frames-dir", "--quiet"},
-               "render": {"--pose", "--out"}, "view": {"--motion", "--subject", "--augmented"}}
+               "render": {"--pose", "--out"}, "view": {"--motion", "--subject", "--augmented"},
+               "augment": {"--avatar", "--refiner", "--examiner", "--out", "--resume", "--overwrite", "--quiet", "--shard",
+                           "--merge"}}
 
 
 def test_every_flag_of_a_converted_command_has_a_spec():
@@ -166,6 +168,7 @@ def test_library_and_command_defaults_are_one_value():
     from trioman.toolkit.evaluate_config import EvalOptions
     from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
     from trioman.runtime.animate import AnimateOptions, RenderOptions
+    from trioman.runtime.augment_options import AugmentOptions
     from trioman.runtime.inspect import InspectOptions
     from trioman.runtime.viewer.config import TimingOptions, ViewerConfig
     from trioman.toolkit.train.config import TrainConfig
@@ -176,7 +179,8 @@ def test_library_and_command_defaults_are_one_value():
                             ("train-refiner", declared(TrainRefinerOptions)), ("train-examiner", declared(TrainExaminerOptions)),
                             ("eval", declared(EvalOptions)), ("inspect", declared(InspectOptions)),
                             ("triplets", declared(TripletsOptions)), ("animate", declared(AnimateOptions)),
-                            ("render", declared(RenderOptions)), ("view", declared(ViewerConfig) + declared(TimingOptions))):
+                            ("render", declared(RenderOptions)), ("view", declared(ViewerConfig) + declared(TimingOptions)),
+                            ("augment", declared(AugmentOptions))):
         actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == cmd_name)))
         for field, spec in specs:
             action = actions.get(flag_of(field, spec))
@@ -202,10 +206,13 @@ def _defaults_agree(fn, options, names: dict[str, str] | None = None) -> None:
 
 def test_the_runtime_functions_default_to_their_commands_options():
     from trioman.runtime.animate import AnimateOptions, animate
+    from trioman.runtime.augment import augment
+    from trioman.runtime.augment_options import AugmentOptions
     from trioman.runtime.formats import load_subject
     from trioman.runtime.inspect import InspectOptions
 
     _defaults_agree(load_subject, InspectOptions)
+    _defaults_agree(augment, AugmentOptions)
     _defaults_agree(animate, AnimateOptions)
     if importlib.util.find_spec("viser") is not None:  # the viewer extra
         from trioman.runtime.viewer.app import open_viewer
