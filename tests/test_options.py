@@ -133,15 +133,22 @@ def _specced(module) -> set[str]:
 
 
 def _flags_of(module) -> dict[str, argparse.Action]:
+    """A command's options by flag, its sub-parsers' (``export avatar``, ``export onnx``) too."""
     parser = argparse.ArgumentParser(add_help=False)
     module.add_arguments(parser)
-    return {s: a for a in parser._actions for s in a.option_strings if s.startswith("--") and not s.startswith("--no-")}
+    parsers, found = [parser], {}
+    while parsers:
+        actions = parsers.pop()._actions
+        parsers += [sub for a in actions if isinstance(a, argparse._SubParsersAction) for sub in a.choices.values()]
+        found.update({s: a for a in actions for s in a.option_strings
+                      if s.startswith("--") and not s.startswith("--no-") and s != "--help"})
+    return found
 
 
 # Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
 # (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus, train-refiner, train-examiner and bench's
 # augmentation options are converted.)
-NOT_YET_DECLARED = {"export", "import", "bench"}
+NOT_YET_DECLARED = {"import", "bench"}
 # Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
@@ -150,7 +157,8 @@ COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "triplets": {"--out", "--quiet"}, "animate": {"--motion", "--out", "--frames-dir", "--quiet"},
                "render": {"--pose", "--out"}, "view": {"--motion", "--subject", "--augmented"},
                "augment": {"--avatar", "--refiner", "--examiner", "--out", "--resume", "--overwrite", "--quiet", "--shard",
-                           "--merge"}}
+                           "--merge"},
+               "export": {"--out", "--checkpoint", "--overwrite", "--refiner", "--examiner"}}
 
 
 def test_every_flag_of_a_converted_command_has_a_spec():
@@ -164,6 +172,7 @@ def test_every_flag_of_a_converted_command_has_a_spec():
 
 def test_library_and_command_defaults_are_one_value():
     from trioman.commands.bench import ABLATION_AUGMENT
+    from trioman.export.config import AvatarExportOptions, OnnxExportOptions
     from trioman.toolkit.train.augment_config import AugmentConfig
     from trioman.toolkit.evaluate_config import EvalOptions
     from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
@@ -180,15 +189,16 @@ def test_library_and_command_defaults_are_one_value():
                             ("eval", declared(EvalOptions)), ("inspect", declared(InspectOptions)),
                             ("triplets", declared(TripletsOptions)), ("animate", declared(AnimateOptions)),
                             ("render", declared(RenderOptions)), ("view", declared(ViewerConfig) + declared(TimingOptions)),
-                            ("augment", declared(AugmentOptions))):
+                            ("augment", declared(AugmentOptions)),
+                            ("export", declared(AvatarExportOptions) + declared(OnnxExportOptions))):
         actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == cmd_name)))
         for field, spec in specs:
             action = actions.get(flag_of(field, spec))
             if action is None:
                 continue  # a config field this command does not expose
             assert action.default is None, (cmd_name, field.name)  # not given: the config's own default applies
-            if spec.default_text is None and field.default is not None:
-                assert action.help.endswith(f"(default {_shown(field.default)})"), (cmd_name, field.name, action.help)
+            if spec.default_text is None and field.default not in (None, (), dataclasses.MISSING):
+                assert action.help.endswith(f"(default {_shown(field.default, spec.sep)})"), (cmd_name, field.name, action.help)
         assert actions, cmd_name
 
 
@@ -227,11 +237,20 @@ def test_the_toolkit_functions_default_to_their_commands_options():
     from trioman.toolkit.triplets_config import TripletsOptions
 
     _defaults_agree(build_draw_triplets, TripletsOptions)
+    pytest.importorskip("onnx")
+    from trioman.export.avatar import export_avatar
+    from trioman.export.config import AvatarExportOptions, OnnxExportOptions
+    from trioman.export.onnx_models import export_onnx
+
+    _defaults_agree(export_avatar, AvatarExportOptions)
+    _defaults_agree(export_onnx, OnnxExportOptions)
 
 
-def _shown(value) -> str:
+def _shown(value, sep: str | None = None) -> str:
     if isinstance(value, bool):
         return "on" if value else "off"
+    if isinstance(value, tuple):
+        return (sep or " ").join(map(_shown, value))
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
