@@ -22,6 +22,7 @@ import onnx
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
+from trioman.export.config import AvatarExportOptions
 from trioman.runtime.formats.avatar import AVATAR_FOLDER, ONNX_INPUT, ONNX_OUTPUTS, save_avatar
 from trioman.runtime.image_io import check_folder_target
 from trioman.runtime.skeleton import Skeleton
@@ -236,8 +237,9 @@ def export_model(model: GaussianAvatar, out: str | Path, *, body_model: str, pos
     return avatar, {"seconds": time.perf_counter() - t0, "onnx_parity_max_abs": parity}
 
 
-def export_avatar(run: str | Path, out: str | Path, checkpoint: str | Path | None = None, pose_dependent: bool = True,
-                  ply_frames: Sequence[int] = (), overwrite: bool = False):
+def export_avatar(run: str | Path, out: str | Path, checkpoint: str | Path | None = None,
+                  pose_dependent: bool = AvatarExportOptions.pose_dependent,
+                  ply_frames: Sequence[int] = AvatarExportOptions.ply_frames, overwrite: bool = False):
     """``trioman export avatar``: a run folder's (latest or named) checkpoint -> an avatar folder.
 
     ply_frames: subject frame indices; each adds posed_<I>.ply at that frame's pose and translation.

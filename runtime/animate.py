@@ -3,15 +3,19 @@
 Runs on the runtime alone (numpy + onnxruntime + OpenCV, no torch): numpy FK + LBS poses the
 Gaussians (plus the avatar's ONNX pose-dependent deltas), the numpy splat renderer draws them.
 The camera is ``fixed`` (one view that keeps the whole clip in frame) or ``orbit`` (a full turn about
-the subject over the clip). Reports the time per frame by stage. The checks of its options
-(``parse_background``, ``check_size``, ``check_video_size``, ``check_angles``) name the parameter, and the
-render command uses them too; the commands show their flags. Standard-library imports only at module level.
+the subject over the clip). Reports the time per frame by stage. The options of ``trioman animate``
+(``AnimateOptions``) and ``trioman render`` (``RenderOptions``) are declared here, and their checks
+(``parse_background``, ``check_size``, ``check_video_size``, ``check_angles``) name the parameter; the commands
+show their flags. Standard-library imports only at module level.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
+from trioman.runtime.options import check_options, option
 
 def parse_background(background: str):
     """'r,g,b' in [0, 1] -> float32 [3]."""
@@ -49,6 +53,63 @@ def check_angles(**degrees: float) -> None:
             raise ValueError(f"{name}: must be a finite number of degrees, got {value}")
 
 
+def _frames(value: Any) -> str | None:
+    from trioman.runtime.formats.motion import MAX_FRAMES
+
+    return None if isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MAX_FRAMES \
+        else f"must lie in [1, {MAX_FRAMES}] (an hour at 30 fps)"
+
+
+def _fps(value: Any) -> str | None:
+    from trioman.runtime.formats.motion import FPS_RANGE
+
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and FPS_RANGE[0] <= value <= FPS_RANGE[1]
+    return None if ok else f"must lie in [{FPS_RANGE[0]}, {FPS_RANGE[1]}] frames per second"
+
+
+@dataclass(frozen=True)
+class ImageOptions:
+    """How an animated or rendered avatar looks."""
+
+    background: str = option("1,1,1", metavar="R,G,B", help="background colour, r,g,b in [0, 1]")
+    pose_dependent: bool = option(True, help="the avatar's pose-dependent deltas")
+
+    def __post_init__(self) -> None:
+        check_options(self)
+        parse_background(self.background)
+
+
+@dataclass(frozen=True)
+class AnimateOptions(ImageOptions):
+    """``trioman animate``'s settings (``animate`` defaults to them)."""
+
+    camera: str = option("fixed", choices=("fixed", "orbit"), help="camera path")
+    azimuth: float = option(20.0, help="degrees; 0 = in front of the subject")
+    elevation: float = option(5.0, help="degrees above the subject's centre")
+    size: int = option(512, help="image side in pixels, even")
+    frames: int | None = option(None, check=_frames, default_text="its own", help="length of a shipped motion")
+    fps: float | None = option(None, check=_fps, default_text="the motion's", help="video frame rate")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_video_size(self.size)
+        check_angles(azimuth=self.azimuth, elevation=self.elevation)
+
+
+@dataclass(frozen=True)
+class RenderOptions(ImageOptions):
+    """``trioman render``'s settings."""
+
+    camera: str = option("front", metavar="CAMERA", help="front | AZ,EL (degrees about the posed body; 0,0 = in "
+                                                         "front) | subject (the camera of --pose SUBJECT@FRAME)")
+    size: int | None = option(None, default_text="512; subject camera: its size", help="image side in pixels")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.size is not None:
+            check_size(self.size)
+
+
 def clip_points(avatar, motion, samples: int = 12):
     """Posed Gaussian centres at up to ``samples`` frames spread over the clip (for framing). -> [M, 3]."""
     import numpy as np
@@ -57,11 +118,12 @@ def clip_points(avatar, motion, samples: int = 12):
     return np.concatenate([avatar.gaussians(motion.pose[i], motion.trans[i], pose_dependent=False).means for i in idx])
 
 
-def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, elevation: float = 5.0,
-            size: int = 512, background=(1.0, 1.0, 1.0), fps: float | None = None, frames_dir=None,
-            pose_dependent: bool = True, progress: bool = True) -> dict:
+def animate(avatar, motion, out, camera: str = AnimateOptions.camera, azimuth: float = AnimateOptions.azimuth,
+            elevation: float = AnimateOptions.elevation, size: int = AnimateOptions.size,
+            background=AnimateOptions.background, fps: float | None = AnimateOptions.fps, frames_dir=None,
+            pose_dependent: bool = AnimateOptions.pose_dependent, progress: bool = True) -> dict:
     """Render ``motion`` (a Motion in the avatar's joint order) with ``avatar`` (runtime Avatar) to an MP4
-    at ``out``; angles in degrees. The camera frames the bulk of the clip (``frame_points``); a clip whose
+    at ``out``; angles in degrees, ``background`` "r,g,b" or three numbers in [0, 1]. The camera frames the bulk of the clip (``frame_points``); a clip whose
     every frame shows nothing of the avatar is a ValueError and writes nothing, and a failure leaves no video
     and none of this call's ``frames_dir`` PNGs. -> timings: frames, seconds, ms per frame for posing and
     rendering, and the frames that show nothing (``empty``)."""
@@ -79,7 +141,7 @@ def animate(avatar, motion, out, camera: str = "fixed", azimuth: float = 20.0, e
         raise ValueError(f"camera: expected 'fixed' or 'orbit', got {camera!r}")
     size = check_video_size(size)
     check_angles(azimuth=azimuth, elevation=elevation)
-    bg = np.asarray(background, dtype=np.float32)
+    bg = parse_background(background) if isinstance(background, str) else np.asarray(background, dtype=np.float32)
     out = Path(out)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"out: the folder {out.parent} does not exist")

@@ -1,11 +1,26 @@
 """A subject folder's summary lines (``trioman inspect``: trioman/commands/inspect.py).
 
-Standard-library imports only at module level; numpy and the runtime are imported inside ``summarize``.
+Standard-library imports only at module level (the command builds its parser from ``InspectOptions``); numpy and
+the runtime are imported inside ``summarize``.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
+
+from trioman.runtime.options import check_options, option
+
+
+@dataclass(frozen=True)
+class InspectOptions:
+    """What ``trioman inspect`` checks (``load_subject``'s ``check_images`` defaults to it)."""
+
+    check_images: bool = option(True, flag="--images",
+                                help="check that every frame's image and mask exists with the right size")
+
+    def __post_init__(self) -> None:
+        check_options(self)
 
 
 def _noise_entries(value: Any, prefix: str = "") -> list[tuple[str, Any]]:

@@ -28,14 +28,20 @@ class Option:
     const: Any = None  # not None: the flag alone (no value) sets this
     check: Check | None = None
     default_text: str | None = None  # the default as the help says it, where the field's value says less
-    parse: Callable[[str], Any] | None = None  # the text typed -> the value (None: the field's type)
+    parse: Callable[[str], Any] | None = None  # the text typed -> the value (an item's, for a tuple; None: the type's)
+    repeat: bool = False  # a tuple field: one item per flag (``--ply-frame 1 --ply-frame 4``)
+    sep: str | None = None  # a tuple field: its items in one word, split on this (``--variants fp32,int8``)
 
 
 def option(default: Any = MISSING, *, help: str, flag: str | None = None, metavar: str | None = None,
            choices: Iterable[Any] | None = None, const: Any = None, check: Check | None = None,
-           default_text: str | None = None, parse: Callable[[str], Any] | None = None) -> Any:
-    """A dataclass field with its option: ``name: float = option(0.2, help="...", check=number(0, 1))``."""
-    spec = Option(help, flag, metavar, None if choices is None else tuple(choices), const, check, default_text, parse)
+           default_text: str | None = None, parse: Callable[[str], Any] | None = None, repeat: bool = False,
+           sep: str | None = None) -> Any:
+    """A dataclass field with its option: ``name: float = option(0.2, help="...", check=number(0, 1))``. No default:
+    the option is required. A ``tuple[T, ...]`` field takes its items after one flag (``--calibration A B``), one per
+    flag (``repeat``) or in one word split on ``sep``; ``choices`` and ``check`` then hold for each item."""
+    spec = Option(help, flag, metavar, None if choices is None else tuple(choices), const, check, default_text, parse,
+                  repeat, sep)
     return dataclasses.field(default=default, metadata={"option": spec})
 
 
@@ -60,6 +66,12 @@ def base_type(f: dataclasses.Field) -> str:
     return next((p for p in parts if p != "None"), "None")
 
 
+def item_type(f: dataclasses.Field) -> str | None:
+    """The item type of a ``tuple[T, ...]`` field ("tuple[int, ...]" -> "int"), None for any other field."""
+    kind = base_type(f)
+    return kind[len("tuple["):-len(", ...]")] if kind.startswith("tuple[") and kind.endswith(", ...]") else None
+
+
 def _optional(f: dataclasses.Field) -> bool:
     return "None" in [p.strip() for p in str(f.type).split("|")]
 
@@ -70,18 +82,30 @@ def shown(value: Any) -> str:
 
 def check_options(obj: Any) -> None:
     """Check each declared field of dataclass instance ``obj``: its choices and its check, a ValueError naming the
-    field and the value (``start: must lie in [0, 1), got 2.0``). None passes where the field may be None."""
+    field and the value (``start: must lie in [0, 1), got 2.0``; a tuple field's, each item). None passes where the
+    field may be None."""
     for f, spec in declared(type(obj)):
         value = getattr(obj, f.name)
         if value is None and _optional(f):
             continue
-        if spec.choices is not None and value not in spec.choices:
-            raise ValueError(f"{f.name}: expected one of {', '.join(map(str, spec.choices))}, got {value!r}")
-        if base_type(f) == "bool" and not isinstance(value, bool):
-            raise ValueError(f"{f.name}: must be true or false, got {value!r}")
-        problem = spec.check(value) if spec.check is not None else None
-        if problem is not None:
-            raise ValueError(f"{f.name}: {problem}, got {value!r}")
+        if item_type(f) is None:
+            _check_value(f, spec, value)
+        elif not isinstance(value, tuple):
+            raise ValueError(f"{f.name}: must be a tuple, got {value!r}")
+        else:
+            for item in value:
+                _check_value(f, spec, item)
+
+
+def _check_value(f: dataclasses.Field, spec: Option, value: Any) -> None:
+    """``value``, the field's or one item of a tuple field's, against the field's choices, type and check."""
+    if spec.choices is not None and value not in spec.choices:
+        raise ValueError(f"{f.name}: expected one of {', '.join(map(str, spec.choices))}, got {value!r}")
+    if base_type(f) == "bool" and not isinstance(value, bool):
+        raise ValueError(f"{f.name}: must be true or false, got {value!r}")
+    problem = spec.check(value) if spec.check is not None else None
+    if problem is not None:
+        raise ValueError(f"{f.name}: {problem}, got {value!r}")
 
 
 def integer(lo: int | None = None, hi: int | None = None) -> Check:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
+import importlib.util
 import math
 
 import pytest
@@ -86,26 +87,82 @@ def test_number_accepts_exactly_the_finite_values_of_its_interval(x):
     assert ok == (math.isfinite(x) and 0 <= x < 1)
 
 
+@dataclasses.dataclass(frozen=True)
+class Lists:
+    name: str = option(help="a name")  # no default: a required option
+    frames: tuple[int, ...] = option((), flag="--frame", repeat=True, check=integer(0), help="frames")
+    files: tuple[str, ...] | None = option(None, metavar="FILE", help="files")
+    kinds: tuple[str, ...] = option(("a", "b"), sep=",", choices=("a", "b", "c"), help="kinds")
+
+    def __post_init__(self) -> None:
+        check_options(self)
+
+
+def test_tuple_fields_take_their_items_after_the_flag_once_per_flag_or_split():
+    p = _parser(Lists)
+    args = p.parse_args(["--frame", "3", "--frame", "1", "--files", "x.npz", "y.npz", "--kinds", "c, a,", "--name", "n"])
+    assert given(Lists, args) == {"frames": (3, 1), "files": ("x.npz", "y.npz"), "kinds": ("c", "a"), "name": "n"}
+    assert given(Lists, p.parse_args(["--name", "n"])) == {"name": "n"}
+    assert Lists("n") == Lists("n", frames=(), files=None, kinds=("a", "b"))
+    helps = {a.dest: a.help for a in p._actions}
+    assert helps["kinds"] == "kinds (default a,b)" and helps["frame"] == "frames"  # an empty tuple is not shown
+    with pytest.raises(SystemExit):
+        p.parse_args(["--frame", "x", "--name", "n"])  # each item parsed as the item type
+
+
+def test_a_field_without_a_default_is_a_required_option():
+    assert {a.dest for a in _parser(Lists)._actions if a.required} == {"name"}
+    with pytest.raises(SystemExit):
+        _parser(Lists).parse_args([])
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"frames": (2, -1)}, "frames: must be an integer >= 0, got -1"),
+    ({"kinds": ("a", "d")}, "kinds: expected one of a, b, c, got 'd'"),
+    ({"frames": [1]}, "frames: must be a tuple, got [1]"),
+])
+def test_a_tuple_fields_checks_hold_for_each_item(kw, message):
+    with pytest.raises(ValueError) as err:
+        Lists("n", **kw)
+    assert str(err.value) == message
+
+
 def _specced(module) -> set[str]:
     """The flags declared on the fields of a converted command's configs (its module's ``_configs()``)."""
     return {flag_of(f, spec) for cls in module._configs() for f, spec in declared(cls)}
 
 
-def _flags_of(module) -> dict[str, argparse.Action]:
+def _flags_of(module, target: str | None = None) -> dict[str, argparse.Action]:
+    """A command's options by flag, its sub-parsers' (``export avatar``, ``export onnx``) too; only the sub-parser
+    ``target``'s when given."""
     parser = argparse.ArgumentParser(add_help=False)
     module.add_arguments(parser)
-    return {s: a for a in parser._actions for s in a.option_strings if s.startswith("--") and not s.startswith("--no-")}
+    parsers, found = [parser], {}
+    while parsers:
+        actions = parsers.pop()._actions
+        subs = {name: sub for a in actions if isinstance(a, argparse._SubParsersAction) for name, sub in a.choices.items()}
+        parsers += [subs[target]] if target in subs else list(subs.values())
+        if target is None or not subs:
+            found.update({s: a for a in actions for s in a.option_strings
+                          if s.startswith("--") and not s.startswith("--no-") and s != "--help"})
+    return found
 
 
 # Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
-# (issue 44: every flag of every command has a spec; train, synth, demo, fit, synth-corpus, train-refiner, train-examiner and bench's
+# (issue 44: every flag of every command has a spec; all but bench are converted, and bench ablation's
 # augmentation options are converted.)
-NOT_YET_DECLARED = {"export", "import", "triplets", "animate", "render", "augment", "view", "inspect", "bench"}
+NOT_YET_DECLARED = {"bench"}
 # Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
                "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"},
-               "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}, "eval": {"--out", "--quiet"}}
+               "train-refiner": {"--corpus", "--triplets", "--out"}, "train-examiner": {"--corpus", "--out"}, "eval": {"--out", "--quiet"},
+               "triplets": {"--out", "--quiet"}, "animate": {"--motion", "--out", "--frames-dir", "--quiet"},
+               "render": {"--pose", "--out"}, "view": {"--motion", "--subject", "--augmented"},
+               "augment": {"--avatar", "--refiner", "--examiner", "--out", "--resume", "--overwrite", "--quiet", "--shard",
+                           "--merge"},
+               "export": {"--out", "--checkpoint", "--overwrite", "--refiner", "--examiner"},
+               "import": {"--subject", "--out", "--body-model-dir", "--masks", "--overwrite"}}
 
 
 def test_every_flag_of_a_converted_command_has_a_spec():
@@ -119,29 +176,95 @@ def test_every_flag_of_a_converted_command_has_a_spec():
 
 def test_library_and_command_defaults_are_one_value():
     from trioman.commands.bench import ABLATION_AUGMENT
+    from trioman.export.config import AvatarExportOptions, OnnxExportOptions
     from trioman.toolkit.train.augment_config import AugmentConfig
     from trioman.toolkit.evaluate_config import EvalOptions
     from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
+    from trioman.runtime.animate import AnimateOptions, RenderOptions
+    from trioman.runtime.augment_options import AugmentOptions
+    from trioman.runtime.inspect import InspectOptions
+    from trioman.runtime.viewer.config import TimingOptions, ViewerConfig
+    from trioman.toolkit.importers.options import ExAvatarOptions, SmplxFitsOptions
     from trioman.toolkit.train.config import TrainConfig
+    from trioman.toolkit.triplets_config import TripletsOptions
 
     for cmd_name, specs in (("train", declared(TrainConfig) + declared(AugmentConfig)),
                             ("bench", [(f, s) for f, s in declared(AugmentConfig) if f.name in ABLATION_AUGMENT]),
                             ("train-refiner", declared(TrainRefinerOptions)), ("train-examiner", declared(TrainExaminerOptions)),
-                            ("eval", declared(EvalOptions))):
-        actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == cmd_name)))
+                            ("eval", declared(EvalOptions)), ("inspect", declared(InspectOptions)),
+                            ("triplets", declared(TripletsOptions)), ("animate", declared(AnimateOptions)),
+                            ("render", declared(RenderOptions)), ("view", declared(ViewerConfig) + declared(TimingOptions)),
+                            ("augment", declared(AugmentOptions)),
+                            ("export avatar", declared(AvatarExportOptions)), ("export onnx", declared(OnnxExportOptions)),
+                            ("import exavatar", declared(ExAvatarOptions)), ("import smplx-fits", declared(SmplxFitsOptions))):
+        name, _, target = cmd_name.partition(" ")
+        actions = _flags_of(importlib.import_module(next(c.module for c in COMMANDS if c.name == name)), target or None)
         for field, spec in specs:
             action = actions.get(flag_of(field, spec))
             if action is None:
                 continue  # a config field this command does not expose
             assert action.default is None, (cmd_name, field.name)  # not given: the config's own default applies
-            if spec.default_text is None and field.default is not None:
-                assert action.help.endswith(f"(default {_shown(field.default)})"), (cmd_name, field.name, action.help)
+            if spec.default_text is None and field.default not in (None, (), dataclasses.MISSING):
+                assert action.help.endswith(f"(default {_shown(field.default, spec.sep)})"), (cmd_name, field.name, action.help)
         assert actions, cmd_name
 
 
-def _shown(value) -> str:
+def _defaults_agree(fn, options, names: dict[str, str] | None = None) -> None:
+    """Each parameter of ``fn`` with a default that is named as a field of ``options`` (or in ``names``: parameter ->
+    field) defaults to that field's default."""
+    import inspect
+
+    names = {**{f.name: f.name for f, _ in declared(options)}, **(names or {})}
+    params = [p for p in inspect.signature(fn).parameters.values() if p.name in names and p.default is not p.empty]
+    for p in params:
+        assert p.default == getattr(options, names[p.name]), (fn.__name__, p.name, p.default)
+    assert params, fn.__name__
+
+
+def test_the_runtime_functions_default_to_their_commands_options():
+    from trioman.runtime.animate import AnimateOptions, animate
+    from trioman.runtime.augment import augment
+    from trioman.runtime.augment_options import AugmentOptions
+    from trioman.runtime.formats import load_subject
+    from trioman.runtime.inspect import InspectOptions
+
+    _defaults_agree(load_subject, InspectOptions)
+    _defaults_agree(augment, AugmentOptions)
+    _defaults_agree(animate, AnimateOptions)
+    if importlib.util.find_spec("viser") is not None:  # the viewer extra
+        from trioman.runtime.viewer.app import open_viewer
+        from trioman.runtime.viewer.config import ViewerConfig
+
+        _defaults_agree(open_viewer, ViewerConfig)
+
+
+def test_the_toolkit_functions_default_to_their_commands_options():
+    pytest.importorskip("torch")
+    from trioman.toolkit.triplets import build_draw_triplets
+    from trioman.toolkit.triplets_config import TripletsOptions
+
+    _defaults_agree(build_draw_triplets, TripletsOptions)
+    from trioman.toolkit.importers.exavatar import BodyConfig, import_exavatar
+    from trioman.toolkit.importers.options import ExAvatarOptions, SmplxFitsOptions
+    from trioman.toolkit.importers.smplx_fits import import_smplx_fits
+
+    _defaults_agree(BodyConfig, ExAvatarOptions)
+    _defaults_agree(import_exavatar, ExAvatarOptions)
+    _defaults_agree(import_smplx_fits, SmplxFitsOptions)
+    pytest.importorskip("onnx")
+    from trioman.export.avatar import export_avatar
+    from trioman.export.config import AvatarExportOptions, OnnxExportOptions
+    from trioman.export.onnx_models import export_onnx
+
+    _defaults_agree(export_avatar, AvatarExportOptions)
+    _defaults_agree(export_onnx, OnnxExportOptions)
+
+
+def _shown(value, sep: str | None = None) -> str:
     if isinstance(value, bool):
         return "on" if value else "off"
+    if isinstance(value, tuple):
+        return (sep or " ").join(map(_shown, value))
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 

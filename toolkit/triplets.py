@@ -20,6 +20,7 @@ from trioman.runtime.formats.common import FormatError, load_npz
 from trioman.runtime.image_io import atomic_path, check_not_input
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.rotations import axis_angle_to_matrix
+from trioman.toolkit.triplets_config import TripletsOptions
 
 TRIPLETS_VERSION = 2
 _ARRAYS = ("meta", "gt", "mask", "coarse", "normal", "frame", "split", "sequence", "view_yaw")
@@ -131,7 +132,8 @@ def build_triplets(run: str | Path, out: str | Path, progress: bool = True) -> P
     return out
 
 
-def build_draw_triplets(run: str | Path, out: str | Path, draws: int = 2, seed: int = 0, progress: bool = True) -> Path:
+def build_draw_triplets(run: str | Path, out: str | Path, draws: int, seed: int = TripletsOptions.seed,
+                        progress: bool = True) -> Path:
     """Triplets at Generator draws of a synthetic subject's training frames (``draws`` per frame): what a Refiner
     meets during augmentation. ``gt`` is the truth at the draw (the subject's own renderer, over its background),
     ``coarse`` the avatar's render there, ``aligned`` the draw's aligned reference from its own source frame and

@@ -6,12 +6,12 @@ behind them: docs/design.md, "Deployment (ONNX)". Modules: ``export`` (the entry
 (calibration and gate data), ``checkpoints`` (the model to export), ``constants`` and ``errors``.
 """
 
+from trioman.export.config import VARIANTS
 from trioman.export.onnx_models.constants import (
     EXAMINER_ATOL,
     INT8_MAX_PSNR_DROP_DB,
     INT8_MIN_AGREEMENT,
     REFINER_ATOL,
-    VARIANTS,
 )
 from trioman.export.onnx_models.errors import ExportError, ExportParityError
 from trioman.export.onnx_models.export import (

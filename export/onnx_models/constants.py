@@ -20,7 +20,6 @@ VARIANT_PARITY_FRAMES = 8  # int8/fp16 parity with torch (informative, not gated
 # do not depend on the batch, so neither do the calibration ranges nor the gates.
 REFINER_BATCH_PIXELS = 256 * 256
 REFINER_MAX_BATCH = 8
-VARIANTS = ("fp32", "int8", "fp16")
 # Refiner int8: the ops with weights (and the attention MatMuls) only; quantizing every op buys no
 # accuracy (docs/findings.md, "ONNX export").
 REFINER_INT8_OPS = ("Conv", "MatMul", "Gemm")

@@ -14,6 +14,7 @@ import onnx
 import torch
 
 from trioman import __version__
+from trioman.export.config import VARIANTS, OnnxExportOptions
 from trioman.export.onnx_models.checkpoints import load_source
 from trioman.export.onnx_models.constants import (
     EXAMINER_ATOL,
@@ -25,7 +26,6 @@ from trioman.export.onnx_models.constants import (
     OPSET,
     REFINER_ATOL,
     REPORT_FORMAT,
-    VARIANTS,
 )
 from trioman.export.onnx_models.errors import ExportError
 from trioman.export.onnx_models.frames import load_data, triplet_size
@@ -169,8 +169,9 @@ def export_examiner_onnx(model_or_ckpt: Any, path: str | os.PathLike, *, precisi
 
 
 def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLike | None = None, *,
-                variants: Sequence[str] | str = VARIANTS, calibration: Sequence[str | os.PathLike] | None = None,
-                size: int | Sequence[int] | None = None, overwrite: bool = False, seed: int = 0,
+                variants: Sequence[str] | str = OnnxExportOptions.variants,
+                calibration: Sequence[str | os.PathLike] | None = OnnxExportOptions.calibration,
+                size: int | Sequence[int] | None = OnnxExportOptions.size, overwrite: bool = False, seed: int = 0,
                 calibration_frames: int = 32, gate_frames: int = 32,
                 progress: Callable[[str], None] | None = None) -> dict:
     """``trioman export onnx``: the Refiner and/or the Examiner (modules, checkpoint files or run folders)

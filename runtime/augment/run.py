@@ -21,6 +21,7 @@ from trioman.runtime.augment.merge import merge as merge_shards
 from trioman.runtime.augment.records import read_record
 from trioman.runtime.augment.settings import check_resume, run_settings
 from trioman.runtime.augment.step import Step, augment_frame, make_aligner
+from trioman.runtime.augment_options import AugmentOptions
 from trioman.runtime.formats import load_avatar, load_subject
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, SUBJECT_JSON, WEIGHTS_DIR
 from trioman.runtime.generator import GeneratorConfig, joint_groups
@@ -36,21 +37,21 @@ def augment(
     out: str | os.PathLike,
     examiner: str | os.PathLike | None = None,
     *,
-    per_frame: int = 2,
-    threshold: float | None = None,
-    seed: int = 0,
-    frames: str = "train",
-    limit: int | None = None,
+    per_frame: int = AugmentOptions.per_frame,
+    threshold: float | None = AugmentOptions.threshold,
+    seed: int = AugmentOptions.seed,
+    frames: str = AugmentOptions.frames,
+    limit: int | None = AugmentOptions.limit,
     resume: bool = False,
     overwrite: bool = False,
     generator: GeneratorConfig | None = None,
-    threads: int | None = None,
+    threads: int | None = AugmentOptions.threads,
     progress: bool = True,
     shard: Shard | None = None,
     merge: bool = False,
-    mask: str = "carried",
-    keep_carried: bool | None = None,
-    texture: int = 0,
+    mask: str = AugmentOptions.mask,
+    keep_carried: bool | None = AugmentOptions.keep_carried,
+    texture: int = AugmentOptions.texture,
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
     optional Examiner (ONNX files) into the folder ``out`` (package doc). -> the augment.json content.

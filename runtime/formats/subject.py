@@ -38,6 +38,7 @@ from trioman.runtime.formats.common import (
     write_npz,
 )
 from trioman.runtime.skeleton import SkinnedMesh
+from trioman.runtime.inspect import InspectOptions
 
 SUBJECT_FORMAT = "trioman-subject"
 SUBJECT_VERSION = 1
@@ -320,7 +321,7 @@ def check_frame_name(name: Any, where: Any, field: str) -> str:
 # load
 
 
-def load_subject(path: str | os.PathLike, check_images: bool = True) -> Subject:
+def load_subject(path: str | os.PathLike, check_images: bool = InspectOptions.check_images) -> Subject:
     """Load and validate a subject folder (see docs/formats.md).
 
     check_images: also check that every frame's image and mask exist, are PNGs of the right kind and

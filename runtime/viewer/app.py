@@ -5,13 +5,14 @@ from __future__ import annotations
 import os
 
 from trioman.runtime.formats import load_avatar
+from trioman.runtime.viewer.config import ViewerConfig
 from trioman.runtime.viewer.posing import Poser, motion_catalog, motion_label
-from trioman.runtime.viewer.server import AvatarViewer, ViewerConfig
+from trioman.runtime.viewer.server import AvatarViewer
 
 
 def open_viewer(avatar: str | os.PathLike | None, motion: str | None = None, subject: str | os.PathLike | None = None,
-                augmented: str | os.PathLike | None = None, host: str = "127.0.0.1", port: int = 8080,
-                fps: float | None = None) -> AvatarViewer:
+                augmented: str | os.PathLike | None = None, host: str = ViewerConfig.host,
+                port: int = ViewerConfig.port, fps: float | None = ViewerConfig.fps) -> AvatarViewer:
     """A running viewer of ``avatar`` (default with ``augmented``: the augment run's avatar); every input is
     loaded and checked before the server starts. Stop it with ``.stop()``."""
     from trioman.runtime.viewer.augmented import AugmentedView, run_avatar_path

@@ -18,25 +18,16 @@ import ipaddress
 import socket
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import viser
 
 from trioman.runtime.cameras import camera_center, frame_points
+from trioman.runtime.viewer.config import ViewerConfig
 from trioman.runtime.viewer.posing import MAX_BEND, PoseControls, Poser, SplatDiff
 
 SPLATS = "/avatar"  # the splats' scene node
 _FOV_SIZE = 512  # frame_points' image side for the initial camera's field of view
-
-
-@dataclass(frozen=True)
-class ViewerConfig:
-    host: str = "127.0.0.1"
-    port: int = 8080  # 0: any free port
-    fps: float | None = None  # playback rate; None: the motion's own
-    azimuth: float = 20.0  # initial camera, degrees (0 = in front of the subject)
-    elevation: float = 5.0  # degrees above the subject's centre
 
 
 def check_port(host: str, port: int) -> None:
@@ -92,7 +83,8 @@ def _quiet():
 class AvatarViewer:
     """A running viewer of ``poser.avatar``. ``stop()`` shuts it down (also on ``with``)."""
 
-    def __init__(self, poser: Poser, config: ViewerConfig = ViewerConfig()):
+    def __init__(self, poser: Poser, config: ViewerConfig | None = None):
+        config = config or ViewerConfig()
         check_port(config.host, config.port)
         self.poser = poser
         self.config = config

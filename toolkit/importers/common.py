@@ -25,12 +25,12 @@ from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from trioman.toolkit.body.smplx_model import (
     SMPLXBody, Y_UP_TO_Z_UP, full_pose, load_model_arrays, model_file, viewmat_to_z_up,
 )
+from trioman.toolkit.importers.options import UP_SOURCES
 
 # SMPL-X parameters of one frame: name -> shape (axis-angle in SMPL-X's frame, hands relative to their mean).
 PARAM_SHAPES = {"root": (3,), "body": (21, 3), "jaw": (3,), "leye": (3,), "reye": (3,), "lhand": (15, 3),
                 "rhand": (15, 3), "transl": (3,)}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-UP_SOURCES = ("body", "cameras", "none")  # where the world's up comes from (``upright``)
 
 
 @dataclass

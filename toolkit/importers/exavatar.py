@@ -18,12 +18,8 @@ from trioman.toolkit.importers.common import (
     FrameRecord, array, check_target, files_by_index, focal_array, images_by_index, pelvis_per_beta, read_colmap,
     read_gray, read_json, read_npy, read_npz, read_pickle, read_split_list, smplx_params, write_subject,
 )
+from trioman.toolkit.importers.options import DATASETS, GENDERS, XHUMANS_FITS, ExAvatarOptions
 
-DATASETS = ("xhumans", "neuman", "custom")
-GENDERS = ("neutral", "male", "female")
-# X-Humans' fits: "auto" (ExAvatar's when every take holds them, else X-Humans' own), "exavatar" (the takes that
-# hold ExAvatar's fitting output; the others are left out), "xhumans" (X-Humans' own fits and body).
-XHUMANS_FITS = ("auto", "exavatar", "xhumans")
 EXAVATAR_GENDER, EXAVATAR_NUM_BETAS = "male", 100  # ExAvatar's SMPL-X layer
 EXAVATAR_KEYS = {"root": "root_pose", "body": "body_pose", "jaw": "jaw_pose", "leye": "leye_pose",
                  "reye": "reye_pose", "lhand": "lhand_pose", "rhand": "rhand_pose", "transl": "trans"}
@@ -40,9 +36,9 @@ class BodyConfig:
     gender.txt and the mean shape's length)."""
 
     model_dir: str
-    gender: str | None = None
-    num_betas: int | None = None
-    flat_hand_mean: bool = False
+    gender: str | None = ExAvatarOptions.gender
+    num_betas: int | None = ExAvatarOptions.num_betas
+    flat_hand_mean: bool = ExAvatarOptions.flat_hand_mean
 
 
 @dataclass
@@ -328,8 +324,9 @@ def _resolve_body(body: BodyConfig, identity: Identity, folder: Path) -> tuple[s
 
 
 def import_exavatar(root: str | Path, dataset: str, out: str | Path, body: BodyConfig, subject: str | None = None,
-                    allow_pickle: bool = False, overwrite: bool = False, say: Callable[[str], None] = print,
-                    up: str = "body", fits: str = "auto") -> Subject:
+                    allow_pickle: bool = ExAvatarOptions.allow_pickle, overwrite: bool = False,
+                    say: Callable[[str], None] = print, up: str = ExAvatarOptions.up,
+                    fits: str = ExAvatarOptions.fits) -> Subject:
     """Convert a capture in ExAvatar's layout to a subject folder at ``out`` (nothing is written on error; ``out``
     is checked before anything is read). up: where the world's up comes from (``common.upright``: "body",
     "cameras" or "none"); fits: X-Humans' fit source (``XHUMANS_FITS``)."""

@@ -23,6 +23,7 @@ from trioman.toolkit.importers.common import (
     FrameRecord, array, check_target, focal_array, images_by_index, pelvis_per_beta, read_gray, read_json, read_npz,
     smplx_params, write_subject,
 )
+from trioman.toolkit.importers.options import SmplxFitsOptions
 
 SMPLERX_KEYS = {"root": "global_orient", "body": "body_pose", "jaw": "jaw_pose", "leye": "leye_pose",
                 "reye": "reye_pose", "lhand": "left_hand_pose", "rhand": "right_hand_pose", "transl": "transl"}
@@ -55,9 +56,10 @@ def _meta_file(fits_dir: Path, fit: Path) -> Path:
 
 
 def import_smplx_fits(frames_dir: str | Path, fits_dir: str | Path, out: str | Path, model_dir: str | Path,
-                      masks_dir: str | Path | None = None, gender: str = "neutral", flat_hand_mean: bool = False,
-                      test_every: int = 5, overwrite: bool = False, say: Callable[[str], None] = print,
-                      up: str = "body") -> Subject:
+                      masks_dir: str | Path | None = None, gender: str = SmplxFitsOptions.gender,
+                      flat_hand_mean: bool = SmplxFitsOptions.flat_hand_mean, test_every: int = SmplxFitsOptions.test_every,
+                      overwrite: bool = False, say: Callable[[str], None] = print,
+                      up: str = SmplxFitsOptions.up) -> Subject:
     """Write the subject; every ``test_every``-th frame is a test frame (0: none). Nothing is written on error."""
     frames_dir, fits_dir = Path(frames_dir), Path(fits_dir)
     masks_dir = Path(masks_dir) if masks_dir is not None else frames_dir.parent / "masks"

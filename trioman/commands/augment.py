@@ -20,14 +20,25 @@ from __future__ import annotations
 import argparse
 import re
 
-# The parameters of trioman.runtime.augment.augment that this command's flags set -> the flag as typed.
-FLAGS = {"subject": "SUBJECT", "avatar": "--avatar", "refiner": "--refiner", "examiner": "--examiner", "out": "--out",
-         "per_frame": "--per-frame", "threshold": "--threshold", "seed": "--seed", "frames": "--frames",
-         "limit": "--limit", "mask": "--mask", "keep_carried": "--keep-carried", "texture": "--texture", "threads": "--threads",
-         "resume": "--resume", "overwrite": "--overwrite", "shard": "--shard", "merge": "--merge"}
+
+def _configs():
+    from trioman.runtime.augment_options import AugmentOptions
+
+    return (AugmentOptions,)
+
+
+def flags() -> dict[str, str]:
+    """The parameters of trioman.runtime.augment.augment that this command's flags set -> the flag as typed."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {**option_flags(*_configs()), "subject": "SUBJECT", "avatar": "--avatar", "refiner": "--refiner",
+            "examiner": "--examiner", "out": "--out", "resume": "--resume", "overwrite": "--overwrite", "shard": "--shard",
+            "merge": "--merge"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     parser.add_argument("subject", metavar="SUBJECT", help="subject folder (docs/formats.md)")
     parser.add_argument("--avatar", required=True, help="avatar folder of this subject (trioman export avatar)")
     parser.add_argument("--refiner", default=None,
@@ -37,24 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--examiner", default=None,
                         help="Examiner ONNX file; without it every candidate is kept (one frame per candidate)")
     parser.add_argument("--out", required=True, help="output folder: a subject of pseudo-GT frames + records")
-    parser.add_argument("--per-frame", type=int, default=2, help="Generator candidates per source frame (default 2)")
-    parser.add_argument("--threshold", type=float, default=None,
-                        help="drop the chosen candidate when its Examiner score is below this, in [0, 1]")
-    parser.add_argument("--seed", type=int, default=0, help="run seed; each frame's seed derives from it (default 0)")
-    parser.add_argument("--frames", choices=("train", "all"), default="train",
-                        help="source frames: the train split or all frames (default train)")
-    parser.add_argument("--limit", type=int, default=None, help="use only the first N source frames (quick runs)")
-    parser.add_argument("--mask", choices=("carried", "alpha"), default="carried",
-                        help="the pseudo frames' mask: the body mesh plus the source frame's mask carried to the draw "
-                             "(carried, default) or the avatar render's own alpha (alpha, the paper's)")
-    parser.add_argument("--keep-carried", action=argparse.BooleanOptionalAction, default=None,
-                        help="with --refiner: keep the real pixels carried to the draw and take the Refiner's output "
-                             "only where nothing was carried (default with --refiner; measured best, "
-                             "docs/augmentation.md)")
-    parser.add_argument("--texture", type=int, default=0, metavar="TEXELS",
-                        help="take the aligned reference's colour from a texture of this side fused from every source "
-                             "frame wherever its texels were seen (runtime/texture_fusion.py; 0, default: carried pixels only)")
-    parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: its own)")
+    add_options(parser, *_configs())
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier augment output in --out")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -66,16 +60,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from dataclasses import asdict
+
+    from trioman.options import given
     from trioman.runtime.augment import AUGMENT_JSON, RECORDS_DIR, augment
     from trioman.runtime.shards import Shard
 
     shard = None if args.shard is None else Shard.parse(args.shard)
+    (options,) = _configs()
     try:
-        r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, per_frame=args.per_frame,
-                    threshold=args.threshold, seed=args.seed, frames=args.frames, limit=args.limit, resume=args.resume,
-                    overwrite=args.overwrite, threads=args.threads, progress=not args.quiet, shard=shard,
-                    merge=args.merge, mask=args.mask, keep_carried=args.keep_carried,
-                    texture=args.texture)
+        cfg = options(**given(options, args))
+        r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, **asdict(cfg), resume=args.resume,
+                    overwrite=args.overwrite, progress=not args.quiet, shard=shard, merge=args.merge)
     except (ValueError, OSError) as err:  # our own messages (an OSError with an errno is the system's): flags
         if len(err.args) == 1 and isinstance(err.args[0], str) and not getattr(err, "errno", None):
             err.args = (flag_message(err.args[0]),)
@@ -85,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
               f"assemble with --merge when every shard is done")
         return 0
     s, t = r["summary"], r["timing"]
-    thr = "" if args.threshold is None else f" (threshold {args.threshold:g})"
+    thr = "" if cfg.threshold is None else f" (threshold {cfg.threshold:g})"
     if args.examiner is None:
         how = "no --examiner" if args.refiner else "no --refiner: aligned pseudo-GT with per-pixel weights"
         print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates, all kept ({how})")
@@ -109,9 +105,10 @@ def run(args: argparse.Namespace) -> int:
 
 def flag_message(message: str) -> str:
     """A library error as this command's user reads it: the leading parameter name(s) (``name:``, ``a and b:``) and
-    the backquoted ones (`` `name` ``) become flags (FLAGS); the rest stays as it is."""
+    the backquoted ones (`` `name` ``) become flags (``flags()``); the rest stays as it is."""
+    shown = flags()
     head, sep, rest = message.partition(": ")
     names = head.split(" and ")
-    if sep and all(n in FLAGS for n in names):
-        head = " and ".join(FLAGS[n] for n in names)
-    return re.sub(r"`(\w+)`", lambda m: FLAGS.get(m[1], m[0]), head + sep + rest)
+    if sep and all(n in shown for n in names):
+        head = " and ".join(shown[n] for n in names)
+    return re.sub(r"`(\w+)`", lambda m: shown.get(m[1], m[0]), head + sep + rest)

@@ -9,13 +9,25 @@ from __future__ import annotations
 
 import argparse
 
-# The parameters the library's errors name -> the flags as typed; trioman/cli.py
-# shows the errors with them (trioman/commands/flags.py).
-FLAGS = {"overwrite": "--overwrite", "out": "--out", "refiner": "--refiner", "examiner": "--examiner", "size": "--size",
-         "ply_frames": "--ply-frame"}
+
+def _configs():
+    from trioman.export.config import AvatarExportOptions, OnnxExportOptions
+
+    return AvatarExportOptions, OnnxExportOptions
+
+
+def flags() -> dict[str, str]:
+    """The fields and parameters the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {**option_flags(*_configs()), "overwrite": "--overwrite", "out": "--out", "refiner": "--refiner",
+            "examiner": "--examiner"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
+    avatar_options, onnx_options = _configs()
     targets = parser.add_subparsers(dest="target", metavar="TARGET", required=True)
     p = targets.add_parser(
         "avatar", help="a trained run -> a portable avatar folder (gaussians, skeleton, pose-dependent ONNX, .ply)",
@@ -24,9 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("run", help="run folder written by trioman train")
     p.add_argument("--out", required=True, help="avatar folder to write")
     p.add_argument("--checkpoint", default=None, help="checkpoint file (default: the run's latest)")
-    p.add_argument("--no-pose-dependent", action="store_true", help="leave out the pose-dependent terms (no ONNX graph)")
-    p.add_argument("--ply-frame", type=int, action="append", default=[], metavar="I",
-                   help="also write posed_I.ply at subject frame I's pose (repeatable)")
+    add_options(p, avatar_options)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
     p = targets.add_parser(
@@ -37,12 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--refiner", default=None, metavar="CKPT", help="Refiner checkpoint file or run folder (its latest checkpoint)")
     p.add_argument("--examiner", default=None, metavar="CKPT", help="Examiner checkpoint file or run folder (its latest checkpoint)")
     p.add_argument("--out", required=True, help="output folder to write")
-    p.add_argument("--variants", default="fp32,int8,fp16", help="comma-separated subset of fp32,int8,fp16 (default: all)")
-    p.add_argument("--calibration", nargs="+", default=None, metavar="TRIPLETS.npz",
-                   help="triplet files (trioman triplets) for int8 calibration, the int8 gates and real-frame parity "
-                        "(default: synthetic random images)")
-    p.add_argument("--size", type=int, default=None, metavar="N",
-                   help="the Refiner's export size N x N (default: the calibration frames' size, else its config's image_size)")
+    add_options(p, onnx_options)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
 
@@ -58,9 +63,12 @@ def _run_avatar(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from trioman.export.avatar import export_avatar
+    from trioman.options import given
 
-    avatar, info = export_avatar(args.run, args.out, checkpoint=args.checkpoint, pose_dependent=not args.no_pose_dependent,
-                                 ply_frames=args.ply_frame, overwrite=args.overwrite)
+    options, _ = _configs()
+    cfg = options(**given(options, args))
+    avatar, info = export_avatar(args.run, args.out, checkpoint=args.checkpoint, pose_dependent=cfg.pose_dependent,
+                                 ply_frames=cfg.ply_frames, overwrite=args.overwrite)
     out = Path(args.out)
     total = sum(e["bytes"] for e in avatar.meta["files"].values())
     parity = info["onnx_parity_max_abs"]
@@ -78,9 +86,12 @@ def _run_onnx(args: argparse.Namespace) -> int:
     if args.refiner is None and args.examiner is None:
         raise ValueError("export onnx: nothing to export: give --refiner CKPT and/or --examiner CKPT")
     from trioman.export.onnx_models import export_onnx, summary_lines
+    from trioman.options import given
 
-    report = export_onnx(refiner=args.refiner, examiner=args.examiner, out=args.out, variants=args.variants,
-                         calibration=args.calibration, size=args.size, overwrite=args.overwrite,
+    _, options = _configs()
+    cfg = options(**given(options, args))
+    report = export_onnx(refiner=args.refiner, examiner=args.examiner, out=args.out, variants=cfg.variants,
+                         calibration=cfg.calibration, size=cfg.size, overwrite=args.overwrite,
                          progress=lambda msg: print(f"export: {msg}", flush=True))
     for line in summary_lines(report):
         print(line)

@@ -10,20 +10,35 @@ from __future__ import annotations
 import argparse
 
 
+def _configs():
+    from trioman.runtime.inspect import InspectOptions
+
+    return (InspectOptions,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return option_flags(*_configs())
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     parser.add_argument("path", metavar="PATH", help="subject folder (subject.json, body.npz, frames.npz, images/, masks/)")
-    parser.add_argument(
-        "--no-images", action="store_true",
-        help="skip the per-frame check that every image and mask exists with the right size",
-    )
+    add_options(parser, *_configs())
 
 
 def run(args: argparse.Namespace) -> int:
+    from trioman.options import given
     from trioman.runtime.formats import load_subject
     from trioman.runtime.inspect import summarize
 
-    subject = load_subject(args.path, check_images=not args.no_images)
+    (options,) = _configs()
+    cfg = options(**given(options, args))
+    subject = load_subject(args.path, check_images=cfg.check_images)
     for line in summarize(subject):
         print(line)
-    print("valid" + ("" if not args.no_images else " (images not checked)"))
+    print("valid" + ("" if cfg.check_images else " (images not checked)"))
     return 0

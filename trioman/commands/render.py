@@ -5,7 +5,7 @@
 --camera: ``front`` (default), ``AZ,EL`` in degrees about the posed body (0,0 = in front, framed to
           fit), or ``subject`` (the camera of the subject frame given with --pose).
 
-The library's errors name its parameters (``size: ...``); trioman/cli.py shows them with ``FLAGS``.
+The library's errors name its parameters (``size: ...``); trioman/cli.py shows them with ``flags()``.
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
 
@@ -14,18 +14,27 @@ from __future__ import annotations
 import argparse
 import math
 
-# The parameters the library's errors name (trioman.runtime.animate's checks) -> the flags as typed.
-FLAGS = {"avatar": "AVATAR", "size": "--size", "background": "--background"}
+
+def _configs():
+    from trioman.runtime.animate import RenderOptions
+
+    return (RenderOptions,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {**option_flags(*_configs()), "avatar": "AVATAR"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     parser.add_argument("avatar", metavar="AVATAR", help="avatar folder (trioman export avatar)")
     parser.add_argument("--pose", default="rest", help="rest | MOTION[@FRAME] | SUBJECT@FRAME (default rest)")
-    parser.add_argument("--camera", default="front", help="front | AZ,EL (degrees) | subject (default front)")
     parser.add_argument("--out", required=True, help="output PNG path")
-    parser.add_argument("--size", type=int, default=None, help="image side in pixels (default 512; subject camera: its size)")
-    parser.add_argument("--background", default="1,1,1", help="r,g,b in [0, 1] (default white)")
-    parser.add_argument("--no-pose-dependent", action="store_true", help="skip the avatar's pose-dependent deltas")
+    add_options(parser, *_configs())
 
 
 def _split_frame(spec: str) -> tuple[str, int]:
@@ -71,13 +80,15 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from trioman.runtime.animate import EMPTY_ALPHA, check_size, parse_background
+    from trioman.options import given
+    from trioman.runtime.animate import EMPTY_ALPHA, parse_background
     from trioman.runtime.cameras import frame_points
     from trioman.runtime.formats import load_avatar
     from trioman.runtime.image_io import check_not_input, write_png
     from trioman.runtime.render import rasterize
 
-    bg = parse_background(args.background)
+    (options,) = _configs()
+    cfg = options(**given(options, args))
     out = Path(args.out)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"--out: the folder {out.parent} does not exist")
@@ -86,41 +97,37 @@ def run(args: argparse.Namespace) -> int:
         check_not_input(out, [args.avatar, pose_source])
     except ValueError as err:
         raise ValueError(f"--out {err}") from None
-    try:
-        size = None if args.size is None else check_size(args.size)
-    except ValueError as err:
-        raise ValueError(f"--{err}") from None
     avatar = load_avatar(args.avatar)
     pose, trans, subject_cam = resolve_pose(args.pose, avatar.skeleton)
     t0 = time.perf_counter()
-    g = avatar.gaussians(pose, trans, pose_dependent=not args.no_pose_dependent)
-    if args.camera == "subject":
+    g = avatar.gaussians(pose, trans, pose_dependent=cfg.pose_dependent)
+    if cfg.camera == "subject":
         if subject_cam is None:
             raise ValueError("--camera: 'subject' needs --pose SUBJECT@FRAME (the camera comes from that frame)")
         K, viewmat, width, height = subject_cam
-        if size is not None:  # keep the view, change the resolution
-            s = size / max(width, height)
+        if cfg.size is not None:  # keep the view, change the resolution
+            s = cfg.size / max(width, height)
             K = K.copy()
             K[:2] *= s
             width, height = round(width * s), round(height * s)
     else:
-        if args.camera == "front":
+        if cfg.camera == "front":
             az, el = 0.0, 5.0
         else:
             try:
-                az, el = (float(v) for v in args.camera.split(","))
+                az, el = (float(v) for v in cfg.camera.split(","))
             except ValueError:
-                raise ValueError(f"--camera: expected front, subject or AZ,EL in degrees, got {args.camera!r}") from None
+                raise ValueError(f"--camera: expected front, subject or AZ,EL in degrees, got {cfg.camera!r}") from None
             if not (math.isfinite(az) and math.isfinite(el)):
-                raise ValueError(f"--camera: AZ,EL must be finite degrees, got {args.camera!r}")
-        width = height = size or 512
+                raise ValueError(f"--camera: AZ,EL must be finite degrees, got {cfg.camera!r}")
+        width = height = cfg.size or 512
         try:
             K, viewmat, _ = frame_points(g.means, (width, height), np.deg2rad(az), np.deg2rad(el))
         except ValueError as err:
             raise ValueError(f"--pose {args.pose}: the avatar cannot be framed: {err}") from None
-    r = rasterize(*g, viewmat, K, width, height, background=bg)
+    r = rasterize(*g, viewmat, K, width, height, background=parse_background(cfg.background))
     if not r.alpha.max() >= EMPTY_ALPHA:
-        raise ValueError(f"--camera {args.camera}: the image shows nothing of the avatar (out of view); not written")
+        raise ValueError(f"--camera {cfg.camera}: the image shows nothing of the avatar (out of view); not written")
     write_png(out, r.rgb)
     print(f"render: {out} ({width}x{height}, {avatar.num_gaussians} Gaussians, {1000 * (time.perf_counter() - t0):.0f} ms)")
     return 0

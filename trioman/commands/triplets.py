@@ -7,24 +7,37 @@ from __future__ import annotations
 import argparse
 
 
+def _configs():
+    from trioman.toolkit.triplets_config import TripletsOptions
+
+    return (TripletsOptions,)
+
+
+def flags() -> dict[str, str]:
+    """The fields the library's errors name -> this command's flags."""
+    from trioman.runtime.options import flags as option_flags
+
+    return {**option_flags(*_configs()), "out": "--out"}
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from trioman.options import add_options
+
     parser.add_argument("run", metavar="RUN", help="a trained avatar run folder (trioman train)")
     parser.add_argument("--out", required=True, help="output .npz")
-    parser.add_argument("--draws", type=int, metavar="N",
-                        help="synthetic subjects: N Generator draws per training frame, the truth at each as GT "
-                             "(what a Refiner meets during augmentation) instead of the subject's frames")
-    parser.add_argument("--seed", type=int, default=0, help="the draws' seed (default 0)")
-    parser.add_argument("--quiet", action="store_true")
+    add_options(parser, *_configs())
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
+    from trioman.options import given
     from trioman.toolkit.triplets import build_draw_triplets, build_triplets
 
-    if args.draws is not None and args.draws < 1:
-        raise ValueError(f"--draws: must be >= 1, got {args.draws}")
-    if args.draws is None:
+    (options,) = _configs()
+    cfg = options(**given(options, args))
+    if cfg.draws is None:
         out = build_triplets(args.run, args.out, progress=not args.quiet)
     else:
-        out = build_draw_triplets(args.run, args.out, args.draws, args.seed, progress=not args.quiet)
+        out = build_draw_triplets(args.run, args.out, cfg.draws, cfg.seed, progress=not args.quiet)
     print(f"triplets: {out}")
     return 0
