@@ -106,7 +106,7 @@ def mean_metrics(pred, gt, mask) -> dict[str, float]:
 
 def write_report(out: str | Path, target: str, report: dict, markdown: str) -> Path:
     """Write ``out/target.json`` and ``out/target.md`` (atomic writes); -> the markdown's path."""
-    from trioman.runtime.image_io import atomic_write_text
+    from trioman.runtime.outputs import atomic_write_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

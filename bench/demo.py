@@ -78,7 +78,7 @@ def _baseline(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) 
     """Subject, turntable, baseline avatar, its evaluation, export and animations."""
     from trioman.export.avatar import export_avatar
     from trioman.runtime.animate import animate
-    from trioman.runtime.image_io import remove_own
+    from trioman.runtime.outputs import remove_own
     from trioman.runtime.formats.motion import motion_from_spec
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
@@ -115,7 +115,7 @@ def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, 
     -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
     from trioman.export.onnx_models import export_onnx
     from trioman.runtime.augment import augment
-    from trioman.runtime.image_io import remove_own
+    from trioman.runtime.outputs import remove_own
     from trioman.toolkit.model_training import MODEL_RUN, FitConfig, fit_examiner, fit_refiner
     from trioman.toolkit.triplets import build_triplets
 
@@ -144,7 +144,7 @@ def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, 
 
 def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
     """An avatar trained with online aligned augmentation (``--augment aligned``), evaluated on the test split."""
-    from trioman.runtime.image_io import remove_own
+    from trioman.runtime.outputs import remove_own
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.train.augmentation import AugmentConfig
     from trioman.toolkit.train.loop import RUN_FOLDER, train

@@ -368,7 +368,7 @@ def avatar_training_rows(out: Path, iterations: int, frames: int = 4, size: int 
     import csv
     import dataclasses
     from trioman.bench.frames import write_subject
-    from trioman.runtime.image_io import remove_own
+    from trioman.runtime.outputs import remove_own
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import RUN_FOLDER, train
 
@@ -393,7 +393,7 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
     Losses: those the loop returns (none when it stopped)."""
     import dataclasses
     from trioman.export.onnx_models import synthetic_frames
-    from trioman.runtime.image_io import remove_own
+    from trioman.runtime.outputs import remove_own
     from trioman.toolkit.loops.checkpoint import LOOP_RUN
     from trioman.toolkit.examiner import ExaminerTrainConfig, examiner_loop
     from trioman.toolkit.model_training import examiner_batch, refiner_batch

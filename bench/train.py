@@ -126,7 +126,7 @@ def train_presets(config: TrainBenchConfig, out: Path) -> dict:
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
-    from trioman.runtime.image_io import remove_own
+    from trioman.runtime.outputs import remove_own
     from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     subject_dir = out / "subject"

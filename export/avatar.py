@@ -24,7 +24,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from trioman.export.config import AvatarExportOptions
 from trioman.runtime.formats.avatar import AVATAR_FOLDER, ONNX_INPUT, ONNX_OUTPUTS, save_avatar
-from trioman.runtime.image_io import check_folder_target
+from trioman.runtime.outputs import check_folder_target
 from trioman.runtime.skeleton import Skeleton
 from trioman.toolkit.avatar.model import GaussianAvatar
 

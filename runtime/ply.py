@@ -18,7 +18,7 @@ import numpy as np
 
 from trioman.runtime.formats.common import FormatError, require_file
 from trioman.runtime.gaussians import Gaussians
-from trioman.runtime.image_io import atomic_write_bytes
+from trioman.runtime.outputs import atomic_write_bytes
 
 SH_C0 = 0.28209479177387814
 PROPERTIES = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
-from trioman.runtime.image_io import atomic_write_text
+from trioman.runtime.outputs import atomic_write_text
 
 __all__ = ["SHARDS_DIR", "Shard", "shard_run", "check_shards"]
 

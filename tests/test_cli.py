@@ -85,9 +85,9 @@ def full_disk_open(path, mode="r", *args, **kw):
 
 
 def test_a_full_disk_names_the_file_and_leaves_nothing(avatar_dir, tmp_path, capsys, monkeypatch):
-    from trioman.runtime import image_io
+    from trioman.runtime import outputs
 
-    monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
+    monkeypatch.setattr(outputs, "open", full_disk_open, raising=False)
     out = tmp_path / "out" / "img.png"
     out.parent.mkdir()
     assert render(avatar_dir, out) == 1

@@ -70,7 +70,7 @@ def _settings(cfg: CorpusConfig) -> dict:
 
 
 def _write_corpus_json(root: Path, cfg: CorpusConfig) -> None:
-    from trioman.runtime.image_io import atomic_write_text
+    from trioman.runtime.outputs import atomic_write_text
 
     subjects = [{"name": name, "role": role, "seed": cfg.seed + i} for i, (name, role) in enumerate(cfg.names)]
     atomic_write_text(root / CORPUS_JSON, json.dumps({"config": dataclasses.asdict(cfg), "subjects": subjects}, indent=2) + "\n")

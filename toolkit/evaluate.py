@@ -14,7 +14,8 @@ import torch
 from tqdm import tqdm
 
 from trioman.runtime.formats import Subject, load_subject
-from trioman.runtime.image_io import atomic_write_text, check_not_input, kind_of, write_png, write_video
+from trioman.runtime.image_io import write_png, write_video
+from trioman.runtime.outputs import atomic_write_text, check_not_input, kind_of
 from trioman.runtime.preview import contact_sheet
 from trioman.toolkit.avatar.model import GaussianAvatar, PoseFree
 from trioman.toolkit.cpu import flush_denormals

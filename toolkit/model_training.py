@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from trioman.runtime.image_io import FolderKind, atomic_write_text
+from trioman.runtime.outputs import FolderKind, atomic_write_text
 from trioman.toolkit.corpus import triplet_paths
 from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
 from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, examiner_loop, pair_auroc

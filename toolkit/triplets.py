@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from trioman.runtime.formats.common import FormatError, load_npz
-from trioman.runtime.image_io import atomic_path, check_not_input
+from trioman.runtime.outputs import atomic_path, check_not_input
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.rotations import axis_angle_to_matrix
 from trioman.toolkit.triplets_config import TripletsOptions

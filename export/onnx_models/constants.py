@@ -1,6 +1,6 @@
 """Tolerances, gates, opset and file names of the ONNX export (docs/design.md, "Deployment (ONNX)")."""
 
-from trioman.runtime.image_io import FolderKind, known_kind
+from trioman.runtime.outputs import FolderKind, known_kind
 
 OPSET = 17
 EXPORTER = "torch.onnx.export, TorchScript (legacy) exporter, dynamo=False"
@@ -25,7 +25,7 @@ REFINER_MAX_BATCH = 8
 REFINER_INT8_OPS = ("Conv", "MatMul", "Gemm")
 EXPORT_JSON = "export.json"
 REPORT_FORMAT = "trioman-onnx-export"
-# What --overwrite may replace (image_io.check_folder_target): an export folder of exactly these files.
+# What --overwrite may replace (outputs.check_folder_target): an export folder of exactly these files.
 EXPORT_FOLDER = known_kind(FolderKind("ONNX export", EXPORT_JSON, files=(EXPORT_JSON, "refiner*.onnx", "examiner*.onnx",
                                                               "refiner*.onnx.data", "examiner*.onnx.data"), format=REPORT_FORMAT))
 # fp16: ops kept in fp32 on top of onnxruntime's default block list (overflow-prone reductions and

@@ -31,7 +31,7 @@ from trioman.export.onnx_models.errors import ExportError
 from trioman.export.onnx_models.frames import load_data, triplet_size
 from trioman.export.onnx_models.graph import external_data_path
 from trioman.export.onnx_models.jobs import ExaminerJob, Job, RefinerJob
-from trioman.runtime.image_io import atomic_folder, check_folder_target, fsync_dir, temp_sibling, write_synced
+from trioman.runtime.outputs import atomic_folder, check_folder_target, fsync_dir, temp_sibling, write_synced
 
 
 def _square(size: int | Sequence[int] | None, name: str = "size") -> tuple[int, int] | None:

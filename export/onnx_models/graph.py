@@ -14,7 +14,7 @@ from torch import nn
 from trioman.export.onnx_models.constants import BATCH_AXIS, OPSET
 from trioman.export.onnx_models.errors import ExportError
 from trioman.runtime import models as rt
-from trioman.runtime.image_io import fsync_file, write_synced
+from trioman.runtime.outputs import fsync_file, write_synced
 
 
 def _dims(value_info: Any) -> list[int | str | None]:

@@ -15,7 +15,7 @@ from trioman.runtime.formats.common import write_npz
 from trioman.runtime.formats.subject import (
     BODY_NPZ, FRAMES_NPZ, SUBJECT_FORMAT, SUBJECT_JSON, SUBJECT_VERSION, check_frames, check_subject_meta,
 )
-from trioman.runtime.image_io import atomic_path, atomic_write_bytes, atomic_write_text
+from trioman.runtime.outputs import atomic_path, atomic_write_bytes, atomic_write_text
 
 
 def _stats(values: list[float]) -> dict[str, Any]:

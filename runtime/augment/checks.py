@@ -14,7 +14,7 @@ from trioman.runtime.augment.layout import AUGMENT_JSON, HISTOGRAM_PNG, RECORDS_
 from trioman.runtime.formats.subject import (
     BODY_NPZ, FRAMES_NPZ, IMAGES_DIR, MASKS_DIR, SUBJECT_JSON, WEIGHTS_DIR,
 )
-from trioman.runtime.image_io import is_temp_name
+from trioman.runtime.outputs import is_temp_name
 
 
 MAX_PER_FRAME = 64  # candidates per source frame (each is a render, a Refiner pass and an Examiner score)

@@ -25,7 +25,7 @@ from trioman.runtime.augment_options import AugmentOptions
 from trioman.runtime.formats import load_avatar, load_subject
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, SUBJECT_JSON, WEIGHTS_DIR
 from trioman.runtime.generator import GeneratorConfig, joint_groups
-from trioman.runtime.image_io import atomic_write_text, check_not_input, is_temp_name, remove_temp_files
+from trioman.runtime.outputs import atomic_write_text, check_not_input, is_temp_name, remove_temp_files
 from trioman.runtime.pseudo_gt import MASKS, PseudoConfig
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run, writer_lock
 

@@ -15,7 +15,8 @@ from trioman.runtime.augment.layout import AUGMENT_VERSION, STAGES, dump, record
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, WEIGHTS_DIR
 from trioman.runtime.generator import GROUPS, GeneratorConfig, sample
-from trioman.runtime.image_io import atomic_write_text, write_png
+from trioman.runtime.image_io import write_png
+from trioman.runtime.outputs import atomic_write_text
 from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames, needs_aligner
 from trioman.runtime.render import rasterize
 

@@ -36,7 +36,7 @@ from trioman.runtime.formats.common import (
     require_file,
     write_npz,
 )
-from trioman.runtime.image_io import FolderKind, atomic_folder, check_folder_target, known_kind, write_synced
+from trioman.runtime.outputs import FolderKind, atomic_folder, check_folder_target, known_kind, write_synced
 from trioman.runtime.skeleton import Skeleton
 
 AVATAR_FORMAT = "trioman-avatar"
@@ -55,7 +55,7 @@ WEIGHT_SUM_TOL = 1e-4
 _FLOAT_FIELDS = ("positions", "log_scales", "rgb_logits", "opacities", "local_quats", "skin_weights", "pose_weights")
 _INDEX_FIELDS = ("skin_indices", "pose_indices")
 _POSE_CARRY = ("pose_indices", "pose_weights")
-# What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
+# What --overwrite may replace (outputs.check_folder_target): a folder of exactly these files.
 AVATAR_FOLDER = known_kind(FolderKind("avatar", AVATAR_JSON, files=(AVATAR_JSON, GAUSSIANS_NPZ, SKELETON_NPZ, POSE_ONNX, CANONICAL_PLY,
                                                      "posed_*.ply"), format=AVATAR_FORMAT))
 _EXTRA_PLY = re.compile(r"posed_[A-Za-z0-9_.\-]{1,100}\.ply")  # fullmatch

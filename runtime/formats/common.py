@@ -1,5 +1,5 @@
 """Helpers shared by the file formats: the error type, safe JSON/npz reading and npz writing. The
-writers put their folders in place with ``trioman.runtime.image_io.atomic_folder``.
+writers put their folders in place with ``trioman.runtime.outputs.atomic_folder``.
 
 Files are data: ``np.load(..., allow_pickle=False)``, never pickle. Every problem becomes a
 ``FormatError`` (a ValueError) whose message names the file, the field and the value.
@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import not_a_file, write_synced
+from trioman.runtime.outputs import not_a_file, write_synced
 
 
 class FormatError(ValueError):
@@ -60,7 +60,7 @@ def read_json(path: str | os.PathLike, missing: str = "missing file") -> Any:
 
 def require_file(path: str | os.PathLike, missing: str = "missing file") -> None:
     """FormatError naming ``path`` unless it is a regular file: ``missing`` when nothing is there, else what is
-    (a folder, a FIFO or device, a broken link: ``image_io.not_a_file``)."""
+    (a folder, a FIFO or device, a broken link: ``outputs.not_a_file``)."""
     problem = not_a_file(path)
     if problem is not None:
         raise FormatError(f"{path}: {missing if problem == 'missing file' else problem}")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from trioman.runtime.formats.common import FormatError, format_error, load_npz
-from trioman.runtime.image_io import atomic_path
+from trioman.runtime.outputs import atomic_path
 from trioman.runtime.motions import DEFAULT_FPS, DEFAULT_FRAMES, MOTIONS, Motion
 from trioman.runtime.skeleton import Skeleton
 

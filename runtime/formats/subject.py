@@ -15,16 +15,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from trioman.runtime.image_io import (
-    FolderKind,
-    atomic_folder,
-    check_folder_target,
-    encode_png,
-    known_kind,
-    png_header,
-    read_png,
-    write_synced,
-)
+from trioman.runtime.image_io import encode_png, png_header, read_png
+from trioman.runtime.outputs import FolderKind, atomic_folder, check_folder_target, known_kind, write_synced
 from trioman.runtime.formats.common import (
     FormatError,
     as_real,
@@ -57,7 +49,7 @@ LAST_ROW_TOL = 1e-6
 
 CONTACT_SHEET_PNG = "contact_sheet.png"  # written beside a subject by trioman synth
 FIT_REPORT_FILES = ("fit.json", "fit.md", "fit_overlay.png", "fit_overlay.mp4")  # written beside a subject by trioman fit
-# What --overwrite may replace (image_io.check_folder_target): a folder of exactly these files.
+# What --overwrite may replace (outputs.check_folder_target): a folder of exactly these files.
 SUBJECT_FOLDER = known_kind(FolderKind("subject", SUBJECT_JSON, files=(SUBJECT_JSON, BODY_NPZ, FRAMES_NPZ, CONTACT_SHEET_PNG, *FIT_REPORT_FILES),
                             folders=((IMAGES_DIR, ("*.png",)), (MASKS_DIR, ("*.png",))), format=SUBJECT_FORMAT))
 

@@ -56,7 +56,7 @@ def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
     assert load_subject(out / "subject").meta["generator"]["coverage"] == 0.33  # the regime the gain was measured in
 
     # issue 41: a rerun starts its runs afresh, removing the demo's own and nothing else
-    from trioman.runtime.image_io import check_folder_target
+    from trioman.runtime.outputs import check_folder_target
     from trioman.toolkit.model_training import MODEL_RUN
     from trioman.toolkit.train.loop import RUN_FOLDER
 

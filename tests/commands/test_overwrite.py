@@ -1,5 +1,5 @@
 """``--overwrite`` through the commands: a folder that is not the command's own kind is refused, naming its
-first foreign file, and nothing in it is removed (runtime.image_io.check_folder_target; export avatar's case
+first foreign file, and nothing in it is removed (runtime.outputs.check_folder_target; export avatar's case
 is in tests/export/test_avatar.py, the library rule in tests/runtime/test_image_io.py)."""
 
 import pytest

@@ -333,7 +333,7 @@ def test_bad_inputs_fail_before_any_work(inputs, tmp_path, capsys, args, message
 def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, straight, tmp_path, capsys, monkeypatch):
     # issue 18, case 2: the disk fills while the third frame's image is written
     from tests.test_cli import full_disk_open
-    from trioman.runtime import image_io
+    from trioman.runtime import outputs
 
     out = tmp_path / "full"
     writes = []
@@ -343,7 +343,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, str
             writes.append(path)
         return full_disk_open(path, mode, *args, **kw) if len(writes) > 7 else open(path, mode, *args, **kw)
 
-    monkeypatch.setattr(image_io, "open", filling, raising=False)
+    monkeypatch.setattr(outputs, "open", filling, raising=False)
     argv = ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
             "--examiner", str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT),
             "--seed", "7", "--no-keep-carried", "--quiet"]
@@ -351,7 +351,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, str
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert f"{out / 'images'}" in err and "_c0.png: no space left on the device" in err, err
-    assert not [p for p in out.rglob("*") if image_io.is_temp_name(p.name)]  # no partial file
+    assert not [p for p in out.rglob("*") if outputs.is_temp_name(p.name)]  # no partial file
     monkeypatch.undo()
     assert main(argv + ["--resume"]) == 0  # the finished frames stay; the run completes
     assert snapshot(out) == straight.files

@@ -23,7 +23,8 @@ from tqdm import tqdm
 from trioman import __version__
 from trioman.runtime.formats import Subject, save_subject
 from trioman.runtime.formats.subject import FIT_REPORT_FILES
-from trioman.runtime.image_io import VideoWriter, atomic_write_text, check_not_input, write_png
+from trioman.runtime.image_io import VideoWriter, write_png
+from trioman.runtime.outputs import atomic_write_text, check_not_input
 from trioman.runtime.mesh_raster import rasterize_mesh
 from trioman.runtime.person import PersonTracker
 from trioman.runtime.preview import contact_sheet

@@ -20,7 +20,8 @@ import numpy as np
 from trioman.runtime.formats import FormatError, Subject, save_subject
 from trioman.runtime.formats.common import read_json as _read_json, require_file
 from trioman.runtime.formats.subject import SUBJECT_FOLDER
-from trioman.runtime.image_io import check_folder_target, read_png
+from trioman.runtime.image_io import read_png
+from trioman.runtime.outputs import check_folder_target
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
 from trioman.toolkit.body.smplx_model import (
     SMPLXBody, Y_UP_TO_Z_UP, full_pose, load_model_arrays, model_file, viewmat_to_z_up,
@@ -117,7 +118,7 @@ def read_pickle(path: Path, allow_pickle: bool) -> Any:
 
 
 def check_target(out: str | Path, overwrite: bool, inputs: list[Path]) -> None:
-    """Before anything is read: ``out`` may take a subject folder (``image_io.check_folder_target``: empty, absent,
+    """Before anything is read: ``out`` may take a subject folder (``outputs.check_folder_target``: empty, absent,
     or with ``overwrite`` a subject folder holding nothing else) and is not, does not hold and does not lie inside
     one of ``inputs`` (the capture, the frames, fits and masks folders)."""
     check_folder_target(Path(out), overwrite, SUBJECT_FOLDER, inputs=inputs)

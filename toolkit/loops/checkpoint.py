@@ -11,7 +11,7 @@ from typing import Any
 
 import torch
 
-from trioman.runtime.image_io import FolderKind, atomic_write_bytes
+from trioman.runtime.outputs import FolderKind, atomic_write_bytes
 
 _NAME = re.compile(r"ckpt_(\d{7})\.pt")  # fullmatch
 SELECTED = "selected.pt"  # run/selected.pt: weights chosen by validation (checkpoint format, no optimizer)

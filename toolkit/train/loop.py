@@ -14,7 +14,7 @@ import torch
 
 from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
-from trioman.runtime.image_io import (
+from trioman.runtime.outputs import (
     FolderKind,
     atomic_write_text,
     check_folder_target,

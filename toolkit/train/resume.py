@@ -25,7 +25,7 @@ from trioman import __version__
 from trioman.runtime.formats import Subject, load_subject
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.formats.subject import BODY_NPZ, FRAMES_NPZ, SUBJECT_JSON
-from trioman.runtime.image_io import atomic_write_text
+from trioman.runtime.outputs import atomic_write_text
 from trioman.runtime.options import declared, flags
 from trioman.toolkit.train.augment_config import AugmentConfig
 from trioman.toolkit.train.config import PRESETS, TrainConfig

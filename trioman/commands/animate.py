@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from trioman.runtime.animate import animate
     from trioman.runtime.formats import load_avatar
     from trioman.runtime.formats.motion import motion_from_spec
-    from trioman.runtime.image_io import check_not_input
+    from trioman.runtime.outputs import check_not_input
 
     (options,) = _configs()
     cfg = options(**given(options, args))

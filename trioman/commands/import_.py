@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from trioman.commands.flags import flag_message
     from trioman.options import given
     from trioman.runtime.formats.subject import SUBJECT_FOLDER
-    from trioman.runtime.image_io import check_folder_target
+    from trioman.runtime.outputs import check_folder_target
 
     shown = flags()
 

@@ -84,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     from trioman.runtime.animate import EMPTY_ALPHA, parse_background
     from trioman.runtime.cameras import frame_points
     from trioman.runtime.formats import load_avatar
-    from trioman.runtime.image_io import check_not_input, write_png
+    from trioman.runtime.image_io import write_png
+    from trioman.runtime.outputs import check_not_input
     from trioman.runtime.render import rasterize
 
     (options,) = _configs()

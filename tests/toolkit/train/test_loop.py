@@ -268,10 +268,10 @@ def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_pat
     import errno
 
     from tests.test_cli import full_disk_open
-    from trioman.runtime import image_io
+    from trioman.runtime import outputs
     from trioman.toolkit.loops.checkpoint import checkpoint_path, save_checkpoint
 
-    monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
+    monkeypatch.setattr(outputs, "open", full_disk_open, raising=False)
     with pytest.raises(OSError) as err:
         save_checkpoint(tmp_path, 5, {"step": 5, "model": {"w": torch.ones(3)}, "config": "{}"})
     assert err.value.errno == errno.ENOSPC and err.value.filename == str(checkpoint_path(tmp_path, 5))
@@ -281,10 +281,10 @@ def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_pat
 def test_command_line_train_on_a_full_disk_is_one_line_and_leaves_no_run(subject, tmp_path, capsys, monkeypatch):
     from tests.test_cli import full_disk_open
     from trioman.cli import main
-    from trioman.runtime import image_io
+    from trioman.runtime import outputs
 
     monkeypatch.setattr("trioman.toolkit.lpips.load_lpips_or_say_why", lambda command: None)
-    monkeypatch.setattr(image_io, "open", full_disk_open, raising=False)
+    monkeypatch.setattr(outputs, "open", full_disk_open, raising=False)
     out = tmp_path / "run"
     assert main(["train", str(subject), "--out", str(out), "--iterations", "2", "--quiet"]) == 1
     err = capsys.readouterr().err
