@@ -19,6 +19,12 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {"trioman": "trioman", "bench": "trioman.bench", "export": "trioman.export",
           "toolkit": "trioman.toolkit", "runtime": "trioman.runtime"}
 FORBIDDEN_EXTERNAL = {"trioman.runtime": ("torch",)}
+# Heavy or optional packages -> the only packages or modules of ours that may import them: onnx builds the graphs
+# (export; the runtime reads them with onnxruntime), matplotlib draws the benchmarks' figures, the body models and
+# SD-Turbo each have their one loader.
+ONLY_IN = {"onnx": ("trioman.export",), "matplotlib": ("trioman.bench",),
+           "anny": ("trioman.toolkit.body.anny_model", "trioman.toolkit.fit"),
+           "smplx": ("trioman.toolkit.body.smplx_model",), "diffusers": ("trioman.toolkit.refiner.sd_turbo",)}
 
 # Violations that stay until their owner fixes them: "file:rule:imported" -> the reason. Fix one and
 # remove its entry (a stale entry fails); a new entry needs a reason and a higher ceiling.
@@ -84,6 +90,9 @@ def violations(imp: Import) -> Iterator[tuple[str, str]]:
     for prefix, banned in FORBIDDEN_EXTERNAL.items():
         if (imp.module + ".").startswith(prefix + ".") and imp.target.split(".")[0] in banned:
             yield "forbidden", imp.target
+    places = ONLY_IN.get(imp.target.split(".")[0])
+    if places is not None and layer(imp.module) is not None and not any(within(imp.module, p) for p in places):
+        yield "forbidden", imp.target
     if layer(imp.target) is None:
         return
     if layer(imp.target) < own:
@@ -173,6 +182,11 @@ def test_the_rules_catch_what_they_should(tmp_path, monkeypatch):
             [("private", "trioman.runtime.render._hidden")],
         ("trioman.cli", "trioman.bench.common", None): [],
         ("trioman.runtime.augment", "trioman", "__version__"): [],
+        ("trioman.runtime.models", "onnx", None): [("forbidden", "onnx")],
+        ("trioman.toolkit.train.loop", "matplotlib.pyplot", None): [("forbidden", "matplotlib.pyplot")],
+        ("trioman.toolkit.synth.subject", "anny", None): [("forbidden", "anny")],
+        ("trioman.toolkit.fit.fitter", "anny", None): [],
+        ("trioman.export.onnx_models.graph", "onnx", None): [],
     }
     for (module, target, name), expected in checks.items():
         assert list(violations(Import(runtime, 1, module, target, name))) == expected, (module, target, name)
