@@ -137,6 +137,15 @@ def test_imported_vertices_match_smplx_in_the_camera(tmp_path, smplx_model_dir, 
     assert mask[33, 31] == 1.0 and mask[0, 0] == 0.0 and np.all(img[0, 0] == 0) and img[33, 31].max() > 0
 
 
+def test_the_upright_check_fails_a_y_down_capture_kept_as_it_is(tmp_path, smplx_model_dir):
+    """The negative control of ``check_upright``: the custom layout's world is the camera's (y down); imported with
+    ``--up none`` it stays so, the person stands along -y, and the check that passes for ``--up body`` fails."""
+    scene, out, rc = run_import(tmp_path, "custom", smplx_model_dir, "--up", "none")
+    assert rc == 0
+    with pytest.raises(AssertionError, match=r"^frame \S+: head "):  # its head is not above its feet along +z
+        check_upright(load_subject(out), scene)
+
+
 def test_custom_with_colmap_cameras(tmp_path, smplx_model_dir):
     """Custom with COLMAP: sparse/ names the images image{N}.jpg (ExAvatar's run_colmap.py), no cam_params/."""
     scene = layouts.write_custom(tmp_path / "data", smplx_model_dir, colmap=True)
