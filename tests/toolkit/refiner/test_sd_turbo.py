@@ -45,7 +45,7 @@ def onnx_error(model: torch.nn.Module, path: Path, size: int = S) -> float:
     return float(np.abs(load_model(path, "refiner").run(**x) - want).max())
 
 
-@pytest.mark.parametrize("conditions", ["none", "tex", "tex+geo"])
+@pytest.mark.parametrize("conditions", ["none", "tex", "tex+geo", "warp", "warp+geo"])
 def test_forward_shapes_and_views_interact(folder, conditions):
     model = create_refiner(config(folder, conditions=conditions)).eval()
     assert isinstance(model, SdTurboRefiner) and model.total_downsample == 4
@@ -128,6 +128,21 @@ def test_onnx_parity_and_contract(exported):
     m = load_model(path, "refiner")
     out = m.run(**{n: np.random.default_rng(0).random((3, 3, S, S), dtype=np.float32) for n in ("coarse", "reference", "normal")})
     assert out.shape == (3, 3, 3, S, S)
+
+
+def test_a_warp_refiner_exports_with_parity(folder, tmp_path):
+    """warp+geo (the aligned reference as ``reference``, and the normal map): the same graph contract and parity."""
+    from trioman.export.onnx_models import export_refiner_onnx
+    from trioman.runtime.models import load_model
+
+    model = create_refiner(config(folder, conditions="warp+geo"), seed=1)
+    with torch.no_grad():
+        for conv in model.skip_convs:
+            conv.weight.normal_(0.0, 0.05)
+    entry = export_refiner_onnx(model, tmp_path / "w.onnx", size=S, gate_frames=2)
+    assert entry["status"] == "written" and onnx_error(model, tmp_path / "w.onnx") <= 1e-3
+    m = load_model(tmp_path / "w.onnx", "refiner")
+    assert m.conditions == "warp+geo" and m.input_names == ("coarse", "reference", "normal")
 
 
 def test_augment_with_the_exported_model(exported, tiny_run, tmp_path):  # noqa: F811
