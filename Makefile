@@ -10,7 +10,7 @@ TORCH  ?= torch==2.13.0
 # The wheel that carries MediaPipe's pose models (trioman.runtime.person); installed without its dependencies.
 MEDIAPIPE ?= mediapipe==0.10.21
 
-.PHONY: demo lint test test-all install clean
+.PHONY: demo lint test install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -32,9 +32,6 @@ lint: install
 	$(BIN)/ruff check .
 
 test: lint
-	$(BIN)/python -m pytest -q -m "not slow"
-
-test-all: lint
 	$(BIN)/python -m pytest -q
 
 clean:
