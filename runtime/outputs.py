@@ -19,6 +19,8 @@ import os
 import re
 import secrets
 import shutil
+import socket
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterable, Iterator
@@ -365,3 +367,82 @@ def atomic_folder(path: PathLike, overwrite: bool = False, kind: FolderKind | No
     for left in path.parent.iterdir():  # what an interrupted (kill -9) write of this same output left behind
         if stale.fullmatch(left.name) and left.is_dir() and not left.is_symlink():
             shutil.rmtree(left, ignore_errors=True)
+
+
+def _lock(path: Path, what: str) -> None:
+    """Create the lock file ``path`` exclusively (one writer at a time, on every machine sharing the folder), or
+    refuse: ``what`` starts the message (``shard 0/2: another job of this shard``)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except FileExistsError:
+        try:
+            holder = json.loads(path.read_text(encoding="utf-8"))
+            who = f"pid {holder['pid']} on {holder['host']} since {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(holder['started']))}"
+            gone = holder["host"] == socket.gethostname() and not _alive(int(holder["pid"]))
+        except (OSError, ValueError, KeyError, TypeError):
+            who, gone = "being started", False
+        state = "was killed (that process is gone)" if gone else "is running"
+        raise ValueError(f"{what} {state} ({who}; lock {path}); "
+                         + (f"remove {path} and run it again" if gone else
+                            f"wait for it, or if it was killed, remove {path} and run it again")) from None
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}) + "\n")
+
+
+@contextlib.contextmanager
+def writer_lock(path: Path, what: str) -> Iterator[None]:
+    """Hold the lock file ``path`` while the block runs (``_lock``; ``what`` names the writer in a refusal)."""
+    _lock(path, what)
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def process_lock(path: Path, what: str) -> Iterator[None]:
+    """One writer at a time on this machine: an exclusive advisory lock (``flock``) on the file ``path`` while the
+    block runs, refused (ValueError starting with ``what``, naming the holder) when another process holds it. The
+    system releases the lock of a killed process, so a resume after ``kill -9`` needs nothing removed; the file goes
+    when the block ends. Without ``fcntl`` (Windows): the exclusive create of ``writer_lock``."""
+    try:
+        import fcntl
+    except ImportError:
+        with writer_lock(path, what):
+            yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            # the file may have been removed (and another made) between our open and the lock: then ours is stale
+            held = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except (BlockingIOError, FileNotFoundError):
+            held = False
+        if not held:
+            try:
+                holder = json.loads(path.read_text(encoding="utf-8"))
+                who = f"pid {holder['pid']} since {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(holder['started']))}"
+            except (OSError, ValueError, KeyError, TypeError):
+                who = "being started"
+            raise ValueError(f"{what} is running ({who}; lock {path}); wait for it to end")
+        os.ftruncate(fd, 0)
+        os.write(fd, (json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}) + "\n").encode())
+        try:
+            yield
+        finally:
+            path.unlink(missing_ok=True)  # before the lock goes: a waiting process then finds no file, or a new one
+    finally:
+        os.close(fd)

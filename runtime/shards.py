@@ -9,16 +9,13 @@ shard or one run with other settings, naming it, and then assembles the final fi
 from __future__ import annotations
 
 import json
-import os
 import re
-import socket
-import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
-from trioman.runtime.outputs import atomic_write_text
+from trioman.runtime.outputs import atomic_write_text, writer_lock
 
 __all__ = ["SHARDS_DIR", "Shard", "shard_run", "check_shards"]
 
@@ -66,47 +63,6 @@ class Shard:
 def _write(path: Path, record: Mapping[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, json.dumps(record, indent=2, allow_nan=False) + "\n")
-
-
-def _lock(path: Path, what: str) -> None:
-    """Create the lock file ``path`` exclusively (one writer at a time, on every machine sharing the folder), or
-    refuse: ``what`` starts the message (``shard 0/2: another job of this shard``)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    except FileExistsError:
-        try:
-            holder = json.loads(path.read_text(encoding="utf-8"))
-            who = f"pid {holder['pid']} on {holder['host']} since {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(holder['started']))}"
-            gone = holder["host"] == socket.gethostname() and not _alive(int(holder["pid"]))
-        except (OSError, ValueError, KeyError, TypeError):
-            who, gone = "being started", False
-        state = "was killed (that process is gone)" if gone else "is running"
-        raise ValueError(f"{what} {state} ({who}; lock {path}); "
-                         + (f"remove {path} and run it again" if gone else
-                            f"wait for it, or if it was killed, remove {path} and run it again")) from None
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}) + "\n")
-
-
-@contextmanager
-def writer_lock(path: Path, what: str) -> Iterator[None]:
-    """Hold the lock file ``path`` while the block runs (``_lock``; ``what`` names the writer in a refusal)."""
-    _lock(path, what)
-    try:
-        yield
-    finally:
-        path.unlink(missing_ok=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # another user's process
-        return True
-    return True
 
 
 @contextmanager

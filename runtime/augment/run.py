@@ -25,9 +25,9 @@ from trioman.runtime.augment_options import AugmentOptions
 from trioman.runtime.formats import load_avatar, load_subject
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, SUBJECT_JSON, WEIGHTS_DIR
 from trioman.runtime.generator import GeneratorConfig, joint_groups
-from trioman.runtime.outputs import atomic_write_text, check_not_input, is_temp_name, remove_temp_files
+from trioman.runtime.outputs import atomic_write_text, check_not_input, is_temp_name, process_lock, remove_temp_files
 from trioman.runtime.pseudo_gt import MASKS, PseudoConfig
-from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run, writer_lock
+from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
 
 def augment(
@@ -98,7 +98,7 @@ def augment(
         raise ValueError(f"out: {err}") from None
     # one writer per output: a second run into the same folder is refused before it reads or removes anything
     # (shard jobs hold their shard's lock instead; the lock lies beside the output, which it would otherwise fill)
-    lock = (writer_lock(out.parent / f".{out.name}.augment.lock", f"out: another `augment` run into {out}")
+    lock = (process_lock(out.parent / f".{out.name}.augment.lock", f"out: another `augment` run into {out}")
             if shard is None and not merge else contextlib.nullcontext())
     with lock:
         top, out = out, (out / SHARDS_DIR / shard.name if shard is not None else out)

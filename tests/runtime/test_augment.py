@@ -520,16 +520,16 @@ def test_a_link_inside_an_earlier_output_is_refused_before_anything_is_written(i
 def test_a_second_run_into_the_same_output_is_refused_while_the_first_writes(inputs, tmp_path):
     # issue 41, D5: two unsharded runs into one --out both exited 0, one result silently replaced
     import os
-    import socket
-    import time
+
+    from trioman.runtime.outputs import process_lock
 
     out = tmp_path / "busy"
     lock = tmp_path / ".busy.augment.lock"
-    lock.write_text(json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "started": time.time()}))
-    with pytest.raises(ValueError, match=rf"^out: another `augment` run into {out} is running \(pid {os.getpid()}"):
-        run(inputs, out, overwrite=True)
-    assert not out.exists() and lock.is_file()  # nothing written; the holder's lock left to it
-    lock.unlink()
+    with process_lock(lock, "the first run"):  # held as the first run holds it
+        with pytest.raises(ValueError, match=rf"^out: another `augment` run into {out} is running \(pid {os.getpid()}"):
+            run(inputs, out, overwrite=True)
+        assert not out.exists()  # nothing written
+    lock.write_text('{"pid": 1}')  # what a killed run leaves: a file nobody holds, which is no obstacle
     run(inputs, out)
     assert not lock.exists()  # released when the run ends
 

@@ -253,3 +253,18 @@ def test_what_is_there_instead_of_a_file_is_said(tmp_path, make, said):
     with pytest.raises(ValueError, match=rf"^{path}: {re.escape(said)}$"):
         read_png(path)
     assert outputs.not_a_file(tmp_path / "absent") == "missing file"
+
+
+def test_a_process_lock_refuses_a_second_holder_and_ignores_a_killed_ones_file(tmp_path):
+    lock = tmp_path / "sub" / ".out.lock"
+    with outputs.process_lock(lock, "out: another run into out"):
+        held = json.loads(lock.read_text())
+        assert held["pid"] == os.getpid()
+        with pytest.raises(ValueError, match=rf"^out: another run into out is running \(pid {os.getpid()} since .*; lock {lock}\)"):
+            with outputs.process_lock(lock, "out: another run into out"):
+                pass
+    assert not lock.exists()
+    lock.write_text("left by kill -9")  # nobody holds it: the system released the killed holder's lock
+    with outputs.process_lock(lock, "out: another run into out"):
+        assert json.loads(lock.read_text())["pid"] == os.getpid()
+    assert not lock.exists()

@@ -21,6 +21,7 @@ from trioman.runtime.outputs import (
     check_not_input,
     naming_os_errors,
     remove_temp_files,
+    process_lock,
 )
 from trioman.runtime.render.timing import stage
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
@@ -140,6 +141,10 @@ def _trim_log(log: Path, step: int) -> None:
 
 @flush_denormals()
 @deterministic_kernels()
+def _run_is_there(run: Path) -> FileExistsError:
+    return FileExistsError(f"{run}: a run is already there (pass `resume` to continue it, or choose another `run`)")
+
+
 def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: bool = False, progress: bool = True,
           stop_after: int | None = None, lpips=None, on_checkpoint: Callable[[int, Path], None] | None = None,
           extend_iterations: int | None = None) -> Path:
@@ -153,7 +158,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
     """
     run, subject_path = Path(run), Path(subject_path)
     if not resume and (run / CONFIG_JSON).exists():
-        raise FileExistsError(f"{run}: a run is already there (pass `resume` to continue it, or choose another `run`)")
+        raise _run_is_there(run)
     if extend_iterations is not None and not resume:
         raise ValueError("extend_iterations: needs `resume` (it continues a run)")
     inputs = [subject_path, cfg.extra_frames]
@@ -164,80 +169,85 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
             check_folder_target(run, False, inputs=inputs)
     except ValueError as err:
         raise ValueError(f"run: {err}") from None
-    subject = load_subject(subject_path)
-    cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
-    frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
-    own = len(frames)  # the subject's own frames come first in the set (pose corrections apply to them)
-    if cfg.extra_frames is not None:  # uniform sampling over the union of both frame sets
-        extra = _extra_subject(cfg, subject)
-        frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
-    model = GaussianAvatar(subject.body, cfg.avatar)
-    corrections = PoseCorrections(subject.sequence, subject.num_joints, cfg.pose_knot_every) if cfg.refine_poses else None
-    augmenter = None if cfg.augment is None else Augmenter(cfg.augment, subject, frames, cfg.iterations, cfg.seed)
-    optimizer = torch.optim.Adam(param_groups(model, cfg, corrections), lr=cfg.lr, eps=1e-15)
-    rng = np.random.default_rng(cfg.seed)
-    torch_gen = torch.Generator().manual_seed(cfg.seed)
-    # The run's config was checked against its record (_prepare_run), not against the checkpoint's; a run not
-    # asked to resume loads no checkpoint; the bar opens once the run is there.
-    loop = ModelRun("train", None, model, optimizer, cfg, run, progress, steps=cfg.iterations, resume=resume, unit="it",
-                    open_bar=False)
-    seconds = 0.0
-    if loop.resumed:
-        seconds = float(loop.resumed["seconds"])
-        rng.bit_generator.state = json.loads(loop.resumed["numpy_rng"])
-        torch_gen.set_state(loop.resumed["torch_rng"])
-        if augmenter is not None:
-            augmenter.load_state_dict(loop.resumed["augment"], model)
-        if corrections is not None:
-            corrections.load_state_dict(loop.resumed["pose_corrections"])
-    write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
-    log = run / TRAIN_LOG
-    _trim_log(log, loop.step)
+    # one writer per run: a second `train` into the same folder is refused while this one runs (the lock lies
+    # beside the run, whose folder it would otherwise fill before the checks above hold)
+    with process_lock(run.parent / f".{run.name}.train.lock", f"run: another `train` into {run}"):
+        if not resume and (run / CONFIG_JSON).exists():  # one that ran while this one was checking its inputs
+            raise _run_is_there(run)
+        subject = load_subject(subject_path)
+        cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
+        frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
+        own = len(frames)  # the subject's own frames come first in the set (pose corrections apply to them)
+        if cfg.extra_frames is not None:  # uniform sampling over the union of both frame sets
+            extra = _extra_subject(cfg, subject)
+            frames = join_frames(frames, load_frames(extra, None, cfg.image_scale), cfg.extra_weight)
+        model = GaussianAvatar(subject.body, cfg.avatar)
+        corrections = PoseCorrections(subject.sequence, subject.num_joints, cfg.pose_knot_every) if cfg.refine_poses else None
+        augmenter = None if cfg.augment is None else Augmenter(cfg.augment, subject, frames, cfg.iterations, cfg.seed)
+        optimizer = torch.optim.Adam(param_groups(model, cfg, corrections), lr=cfg.lr, eps=1e-15)
+        rng = np.random.default_rng(cfg.seed)
+        torch_gen = torch.Generator().manual_seed(cfg.seed)
+        # The run's config was checked against its record (_prepare_run), not against the checkpoint's; a run not
+        # asked to resume loads no checkpoint; the bar opens once the run is there.
+        loop = ModelRun("train", None, model, optimizer, cfg, run, progress, steps=cfg.iterations, resume=resume, unit="it",
+                        open_bar=False)
+        seconds = 0.0
+        if loop.resumed:
+            seconds = float(loop.resumed["seconds"])
+            rng.bit_generator.state = json.loads(loop.resumed["numpy_rng"])
+            torch_gen.set_state(loop.resumed["torch_rng"])
+            if augmenter is not None:
+                augmenter.load_state_dict(loop.resumed["augment"], model)
+            if corrections is not None:
+                corrections.load_state_dict(loop.resumed["pose_corrections"])
+        write_record(run, record)  # every input has loaded: from here on the run is there (and resumable)
+        log = run / TRAIN_LOG
+        _trim_log(log, loop.step)
 
-    def checkpoint() -> None:
-        loop.check_weights()
-        loop.save({
-            "step": loop.step, "seconds": seconds, "skipped": loop.guard.skipped, "model": model.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
-            "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
-            **({} if augmenter is None else {"augment": augmenter.state_dict()}),
-            **({} if corrections is None else {"pose_corrections": corrections.state_dict()}),
-        })
-        if augmenter is not None:
-            atomic_write_text(run / AUGMENT_JSON, json.dumps(augmenter.summary(loop.step), indent=2) + "\n")
-        if on_checkpoint is not None:
-            on_checkpoint(loop.step, loop.saved)
+        def checkpoint() -> None:
+            loop.check_weights()
+            loop.save({
+                "step": loop.step, "seconds": seconds, "skipped": loop.guard.skipped, "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch_gen.get_state(),
+                "config": json.dumps(cfg.to_dict()), "trioman_version": __version__,
+                **({} if augmenter is None else {"augment": augmenter.state_dict()}),
+                **({} if corrections is None else {"pose_corrections": corrections.state_dict()}),
+            })
+            if augmenter is not None:
+                atomic_write_text(run / AUGMENT_JSON, json.dumps(augmenter.summary(loop.step), indent=2) + "\n")
+            if on_checkpoint is not None:
+                on_checkpoint(loop.step, loop.saved)
 
-    loop.open_bar()
-    done_here = 0
-    run_psnr = None
-    with naming_os_errors(log), log.open("a") as log_file:
-        while loop.running and (stop_after is None or done_here < stop_after):
-            t0 = time.perf_counter()
-            step = loop.step
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate(cfg, step) * group["lr_scale"]
-            if augmenter is not None and augmenter.due(step):
-                augmenter.rebuild(model)
-            sample = augmenter.draw() if augmenter is not None and augmenter.use_pseudo(step) else None
-            if sample is None:  # a real frame (also when the Examiner dropped every pool entry)
-                k = int(rng.integers(len(frames)))
-                sample = frames.sample(k)
-                if corrections is not None and k < own and step >= cfg.pose_start * cfg.iterations:
-                    sample["frame"] = int(frames.indices[k])
-            loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step, corrections)
-            done_here += 1
-            seconds += time.perf_counter() - t0
-            if np.isfinite(p):
-                run_psnr = p if run_psnr is None else 0.9 * run_psnr + 0.1 * p
-            log_file.write(f"{step + 1},{seconds:.3f},{loss:.6f},{p:.4f},{learning_rate(cfg, step):.3g}\n")
-            # every step's loss, a skipped step's too, as in the log (the bar shows it; loop.losses is not read)
-            if loop.advance(loss, psnr=f"{run_psnr or 0:.2f}"):
-                log_file.flush()
-                checkpoint()
-    loop.finish()
-    return run
+        loop.open_bar()
+        done_here = 0
+        run_psnr = None
+        with naming_os_errors(log), log.open("a") as log_file:
+            while loop.running and (stop_after is None or done_here < stop_after):
+                t0 = time.perf_counter()
+                step = loop.step
+                for group in optimizer.param_groups:
+                    group["lr"] = learning_rate(cfg, step) * group["lr_scale"]
+                if augmenter is not None and augmenter.due(step):
+                    augmenter.rebuild(model)
+                sample = augmenter.draw() if augmenter is not None and augmenter.use_pseudo(step) else None
+                if sample is None:  # a real frame (also when the Examiner dropped every pool entry)
+                    k = int(rng.integers(len(frames)))
+                    sample = frames.sample(k)
+                    if corrections is not None and k < own and step >= cfg.pose_start * cfg.iterations:
+                        sample["frame"] = int(frames.indices[k])
+                loss, p = train_step(model, optimizer, sample, cfg, torch_gen, lpips, loop.guard, step, corrections)
+                done_here += 1
+                seconds += time.perf_counter() - t0
+                if np.isfinite(p):
+                    run_psnr = p if run_psnr is None else 0.9 * run_psnr + 0.1 * p
+                log_file.write(f"{step + 1},{seconds:.3f},{loss:.6f},{p:.4f},{learning_rate(cfg, step):.3g}\n")
+                # every step's loss, a skipped step's too, as in the log (the bar shows it; loop.losses is not read)
+                if loop.advance(loss, psnr=f"{run_psnr or 0:.2f}"):
+                    log_file.flush()
+                    checkpoint()
+        loop.finish()
+        return run
 
 
 def train_step(model: GaussianAvatar, optimizer: torch.optim.Optimizer, sample: dict, cfg: TrainConfig,

@@ -352,6 +352,23 @@ def test_evaluate_at_the_true_poses(subject, tmp_path):
         evaluate(run, "test", progress=False, poses="fitted")
 
 
+def test_one_writer_per_run(subject, tmp_path, capsys):
+    # issue 41: two `train` into one --out both wrote its checkpoints; a killed run's lock file stops no resume
+    import os
+
+    from trioman.cli import main
+    from trioman.runtime.outputs import process_lock
+
+    run, lock = tmp_path / "r", tmp_path / ".r.train.lock"
+    with process_lock(lock, "the first run"):
+        assert main(["train", str(subject), "--out", str(run), "--iterations", "2", "--quiet"]) == 1
+        assert f"--out: another `train` into {run} is running (pid {os.getpid()}" in capsys.readouterr().err
+    assert not run.exists()
+    lock.write_text("left by kill -9")
+    assert main(["train", str(subject), "--out", str(run), "--iterations", "2", "--quiet"]) == 0
+    assert not lock.exists() and (run / "config.json").is_file()
+
+
 def test_a_new_run_takes_only_an_absent_or_empty_folder_outside_its_inputs(subject, tmp_path, capsys):
     # issue 41, D3: `train --out` into the subject, an avatar, `.` or a folder of another run's checkpoints
     from trioman.cli import main
