@@ -1,7 +1,8 @@
-"""Shared test helpers."""
+"""Shared test helpers, and the fixtures that tests in more than one package use."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -39,3 +40,39 @@ def skip_without_person_models() -> None:
         load_models()
     except MissingModelsError as exc:
         pytest.skip(f"person models not installed: {exc}", allow_module_level=True)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """A tiny trained run: 3 steps on a 6-frame synthetic Anny subject (tests/export, tests/runtime/test_augment.py,
+    tests/runtime/test_shards.py, tests/toolkit/refiner/test_sd_turbo.py)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("anny")
+    from trioman.toolkit.avatar.model import AvatarConfig
+    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
+    from trioman.toolkit.train.config import TrainConfig
+    from trioman.toolkit.train.loop import train
+
+    root = tmp_path_factory.mktemp("export_run")
+    synthesize_subject(SynthConfig(seed=5, size=32, frames=6, texture_size=64), root / "s", progress=False)
+    cfg = TrainConfig(iterations=3, checkpoint_every=3, lr=1e-2,
+                      avatar=AvatarConfig(keep=0.05, triplane_channels=4, triplane_res=8, hidden=8))
+    return train(root / "s", root / "run", cfg, progress=False)
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    """A fabricated corpus: two training subjects and one held out, random triplet files
+    (tests.toolkit.factories.fake_triplets; tests/toolkit/test_model_training.py, tests/toolkit/refiner/test_sd_turbo.py,
+    tests/bench/test_deploy.py)."""
+    from tests.toolkit.factories import fake_triplets
+    from trioman.toolkit.corpus import CORPUS_JSON
+
+    root = tmp_path_factory.mktemp("corpus")
+    subjects = [{"name": "s00", "role": "train"}, {"name": "s01", "role": "train"}, {"name": "s02", "role": "heldout"}]
+    for s in subjects:
+        folder = root / "triplets" / ("all" if s["role"] == "train" else "heldout")
+        folder.mkdir(parents=True, exist_ok=True)
+        fake_triplets(folder / f"{s['name']}.npz", seed=len(s["name"]) + int(s["name"][1:]))
+    (root / CORPUS_JSON).write_text(json.dumps({"config": {}, "subjects": subjects}))
+    return root

@@ -6,6 +6,7 @@ import os
 import pytest
 
 from tests.conftest import run_python
+from tests.full_disk import full_disk_open
 from trioman.cli import COMMANDS, main
 
 
@@ -40,7 +41,7 @@ def test_no_command_prints_help(capsys):
 
 @pytest.fixture
 def avatar_dir(tmp_path):
-    from tests.runtime.test_avatar import write
+    from tests.runtime.factories import write
 
     write(tmp_path / "avatars")
     return tmp_path / "avatars" / "a"
@@ -60,28 +61,6 @@ def test_an_output_path_that_is_a_folder_is_named(avatar_dir, tmp_path, capsys):
     (tmp_path / "img.png").mkdir()
     assert render(avatar_dir, tmp_path / "img.png") == 1
     assert_one_line(capsys.readouterr().err, f"{tmp_path / 'img.png'}: is a directory")
-
-
-class _FullDiskFile:
-    """A file whose writes fail like a full disk's (errno ENOSPC, no file name)."""
-
-    def __init__(self, f):
-        self._f = f
-
-    def write(self, data):
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self._f.close()
-
-
-def full_disk_open(path, mode="r", *args, **kw):
-    """open() on a full disk: files open, writes fail."""
-    f = open(path, mode, *args, **kw)
-    return _FullDiskFile(f) if any(c in mode for c in "wax+") else f
 
 
 def test_a_full_disk_names_the_file_and_leaves_nothing(avatar_dir, tmp_path, capsys, monkeypatch):

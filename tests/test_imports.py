@@ -7,17 +7,12 @@ and setuptools' ``package-dir`` maps ``runtime/``, ``toolkit/``, ... into ``trio
 
 from __future__ import annotations
 
-import ast
 import sys
 from collections.abc import Iterator
 from pathlib import Path
-from typing import NamedTuple
 
-ROOT = Path(__file__).resolve().parents[1]
-# Folder -> import name, top layer first (docs/design.md, "Layout and layering"). A module may import
-# its own layer and the layers below it.
-LAYERS = {"trioman": "trioman", "bench": "trioman.bench", "export": "trioman.export",
-          "toolkit": "trioman.toolkit", "runtime": "trioman.runtime"}
+from tests.imports_graph import LAYERS, ROOT, Import, cycle, graph, imports
+
 FORBIDDEN_EXTERNAL = {"trioman.runtime": ("torch",)}
 # Heavy or optional packages -> the only packages or modules of ours that may import them: onnx builds the graphs
 # (export; the runtime reads them with onnxruntime), matplotlib draws the benchmarks' figures, the body models and
@@ -30,36 +25,6 @@ ONLY_IN = {"onnx": ("trioman.export",), "matplotlib": ("trioman.bench",),
 # remove its entry (a stale entry fails); a new entry needs a reason and a higher ceiling.
 ALLOWED: dict[str, str] = {}
 ALLOWED_CEILING = 0
-
-
-class Import(NamedTuple):
-    path: Path
-    line: int
-    module: str  # the importing module
-    target: str  # the imported module
-    name: str | None  # the imported name, for `from target import name`
-
-
-def module_name(path: Path) -> str:
-    """The import name of a library file: ``runtime/render/tiles.py`` -> ``trioman.runtime.render.tiles``."""
-    rel = path.relative_to(ROOT).with_suffix("")
-    parts = [LAYERS[rel.parts[0]], *rel.parts[1:]]
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-def imports(path: Path) -> Iterator[Import]:
-    """Every import in ``path``, at any depth, with relative imports resolved."""
-    module = module_name(path)
-    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield Import(path, node.lineno, module, alias.name, None)
-        elif isinstance(node, ast.ImportFrom):
-            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
-            target = ".".join(p for p in (base, node.module) if p)
-            for alias in node.names:
-                yield Import(path, node.lineno, module, target, alias.name)
 
 
 def layer(module: str) -> int | None:
@@ -116,34 +81,6 @@ def found() -> dict[str, str]:
                     rel = path.relative_to(ROOT)
                     out.setdefault(f"{rel}:{rule}:{what}", f"{rel}:{imp.line}: {rule}: {imp.module} imports {what}")
     return out
-
-
-def graph() -> dict[str, set[str]]:
-    """Module -> the modules of ours it imports (``from package import module`` counts the module)."""
-    paths = {module_name(p): p for folder in LAYERS for p in sorted((ROOT / folder).rglob("*.py"))}
-    edges: dict[str, set[str]] = {m: set() for m in paths}
-    for module, path in paths.items():
-        for imp in imports(path):
-            target = f"{imp.target}.{imp.name}" if f"{imp.target}.{imp.name}" in paths else imp.target
-            if target in paths and target != module:
-                edges[module].add(target)
-    return edges
-
-
-def cycle(edges: dict[str, set[str]]) -> list[str] | None:
-    """One import cycle (its modules, the first repeated at the end), or None."""
-    done: set[str] = set()
-
-    def visit(module: str, path: list[str]) -> list[str] | None:
-        if module in path:
-            return path[path.index(module):] + [module]
-        if module in done:
-            return None
-        found = next(filter(None, (visit(t, path + [module]) for t in sorted(edges[module]))), None)
-        done.add(module)
-        return found
-
-    return next(filter(None, (visit(m, []) for m in sorted(edges))), None)
 
 
 def test_no_import_cycles():

@@ -10,7 +10,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("onnx")
 
 from trioman.bench.scenes import random_scene  # noqa: E402
-from tests.toolkit.test_model_training import S, corpus  # noqa: E402,F401 (fixture)
+from tests.toolkit.factories import S  # noqa: E402
 from trioman.export.onnx_models import export_onnx  # noqa: E402
 from trioman.bench.deploy import (  # noqa: E402
     bench_examiner_rows, bench_refiner_rows, bench_renderer_rows, deploy_markdown, scatter_plot,
@@ -22,7 +22,7 @@ from trioman.toolkit.triplets import TripletSet  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def trained(corpus, tmp_path_factory):  # noqa: F811
+def trained(corpus, tmp_path_factory):
     out = tmp_path_factory.mktemp("bench_models")
     bench_models(ModelsBenchConfig(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(out), refiner_steps=2,
                                    examiner_steps=2, batch=2, examiner="examiner_nano", crop=16, refiner_size="compact",
@@ -30,7 +30,7 @@ def trained(corpus, tmp_path_factory):  # noqa: F811
     return {k: latest_checkpoint(out / "runs" / run) for k, run in (("refiner", "refiner_tex_geo"), ("examiner", "examiner"))}
 
 
-def test_model_rows_cover_every_variant(trained, corpus, tmp_path):  # noqa: F811
+def test_model_rows_cover_every_variant(trained, corpus, tmp_path):
     onnx = tmp_path / "onnx"
     export_onnx(refiner=trained["refiner"], examiner=trained["examiner"], out=onnx, variants=("fp32", "int8", "fp16"),
                 calibration=triplet_paths(corpus)["train"], size=S)

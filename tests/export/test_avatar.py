@@ -9,8 +9,9 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 
 from tests.conftest import run_python  # noqa: E402
-from tests.runtime.test_avatar import resign  # noqa: E402
-from tests.toolkit.avatar.test_model import SMALL, grid_mesh  # noqa: E402
+from tests.export.factories import trained_like  # noqa: E402
+from tests.runtime.factories import resign  # noqa: E402
+from tests.toolkit.avatar.factories import SMALL, grid_mesh  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.export.avatar import (  # noqa: E402
     ParityError, check_onnx_parity, export_model, parity_poses, pose_dependent_onnx, torch_pose_deltas,
@@ -20,16 +21,6 @@ from trioman.runtime.ply import read_ply  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig, GaussianAvatar  # noqa: E402
 
 ATOL = 1e-5
-
-
-def trained_like(cfg: AvatarConfig, seed: int = 0) -> GaussianAvatar:
-    """A small avatar with every weight perturbed (fresh output layers are zero and would hide errors)."""
-    model = GaussianAvatar(grid_mesh(), cfg)
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(0.3 * torch.randn(p.shape, generator=gen))
-    return model.eval()
 
 
 def test_poses(J=4, seed=1):
@@ -171,20 +162,6 @@ def test_canonical_ply_is_the_rest_pose(tmp_path):
 
 # --------------------------------------------------------------------------------------------------
 # the command, end to end on a tiny trained run
-
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    pytest.importorskip("anny")
-    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
-    from trioman.toolkit.train.config import TrainConfig
-    from trioman.toolkit.train.loop import train
-
-    root = tmp_path_factory.mktemp("export_run")
-    synthesize_subject(SynthConfig(seed=5, size=32, frames=6, texture_size=64), root / "s", progress=False)
-    cfg = TrainConfig(iterations=3, checkpoint_every=3, lr=1e-2,
-                      avatar=AvatarConfig(keep=0.05, triplane_channels=4, triplane_res=8, hidden=8))
-    return train(root / "s", root / "run", cfg, progress=False)
 
 
 def test_export_overwrite_replaces_only_an_avatar_folder_and_never_its_input(tiny_run, tmp_path, capsys):

@@ -8,20 +8,19 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("onnx")
 
 from tests.conftest import run_python  # noqa: E402
-from tests.export.test_avatar import tiny_run  # noqa: E402,F401 (fixture)
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_avatar  # noqa: E402
 from trioman.runtime.render import rasterize  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def exported(tiny_run, tmp_path_factory):  # noqa: F811
+def exported(tiny_run, tmp_path_factory):
     out = tmp_path_factory.mktemp("exported") / "avatar"
     assert main(["export", "avatar", str(tiny_run), "--out", str(out)]) == 0
     return out
 
 
-def test_runtime_render_matches_the_toolkit_render(tiny_run, exported):  # noqa: F811
+def test_runtime_render_matches_the_toolkit_render(tiny_run, exported):
     from trioman.toolkit.evaluate import load_run, render_frame
 
     model, subject, _, _ = load_run(tiny_run)
@@ -61,7 +60,7 @@ def test_animate_and_render_without_torch(exported, tmp_path):
     assert subject_dir  # the avatar records its source run
 
 
-def test_render_with_the_subject_camera_and_bad_specs(exported, tiny_run, tmp_path, capsys):  # noqa: F811
+def test_render_with_the_subject_camera_and_bad_specs(exported, tiny_run, tmp_path, capsys):
     from trioman.toolkit.evaluate import load_run
 
     subject = load_run(tiny_run)[1]

@@ -6,17 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.runtime.test_avatar import edit_npz, write
+from tests.runtime.factories import edit_npz, transparent
 from trioman.cli import main
 from trioman.runtime.animate import animate
 from trioman.runtime.formats import load_avatar
 from trioman.runtime.motions import Motion
-
-
-@pytest.fixture
-def avatar_dir(tmp_path):
-    write(tmp_path / "avatars")
-    return tmp_path / "avatars" / "a"
 
 
 def still(avatar, frames=3, trans=(0.0, 0.0, 0.0)) -> Motion:
@@ -49,17 +43,10 @@ def test_a_clip_that_shows_nothing_is_refused_and_leaves_nothing(avatar_dir, tmp
     avatar = load_avatar(avatar_dir)
     frames = tmp_path / "frames"
     with pytest.raises(ValueError, match=r"^motion still: all 3 frames show nothing of the avatar"):
-        animate(_transparent(avatar_dir), still(avatar), tmp_path / "v.mp4", size=32, frames_dir=frames, progress=False)
+        animate(transparent(avatar_dir), still(avatar), tmp_path / "v.mp4", size=32, frames_dir=frames, progress=False)
     assert not (tmp_path / "v.mp4").exists() and list(frames.iterdir()) == []
     with pytest.raises(ValueError, match=r"^motion still: the avatar cannot be framed: points: 1e\+30 m from the origin"):
         animate(avatar, still(avatar, trans=(1e30, 0, 0)), tmp_path / "v.mp4", size=32, progress=False)
-
-
-def _transparent(avatar_dir):
-    with np.load(avatar_dir / "gaussians.npz") as z:
-        opacities = np.full_like(z["opacities"], 1e-4)
-    edit_npz(avatar_dir, "gaussians.npz", opacities=opacities)
-    return load_avatar(avatar_dir)
 
 
 @pytest.mark.parametrize("args, message", [

@@ -6,7 +6,6 @@ import hashlib
 import json
 import shutil
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ pytest.importorskip("onnx")
 
 import trioman.runtime.augment.step as augment_step  # noqa: E402 (the per-frame step, whose write_png is patched)
 from tests.conftest import run_python  # noqa: E402
-from tests.export.test_avatar import tiny_run, trained_like  # noqa: E402,F401 (fixture)
+from tests.runtime.augment_runs import LIMIT, run, snapshot  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.augment import AUGMENT_JSON, HISTOGRAM_PNG, STAGES, augment, frame_seed  # noqa: E402
 from trioman.runtime.aligned import Aligner, SourceViews  # noqa: E402
@@ -28,70 +27,9 @@ from trioman.runtime.models import ExaminerModel, RefinerModel  # noqa: E402
 from trioman.runtime.normal_map import body_normal_map  # noqa: E402
 from trioman.runtime.render import rasterize  # noqa: E402
 
-LIMIT = 4  # source frames of the main runs (--frames all: the tiny subject has 2 train + 4 test frames)
-
-
-@pytest.fixture(scope="module")
-def inputs(tiny_run, tmp_path_factory):  # noqa: F811
-    from tests.toolkit.avatar.test_model import SMALL
-    from tests.toolkit.examiner.helpers import TINY
-    from tests.toolkit.refiner.helpers import open_zero_inits, tiny_config
-    from trioman.export.avatar import export_model
-    from trioman.export.onnx_models import export_examiner_onnx, export_refiner_onnx
-    from trioman.toolkit.avatar.model import AvatarConfig
-    from trioman.toolkit.examiner import create_examiner
-    from trioman.toolkit.refiner import create_refiner
-
-    root = tmp_path_factory.mktemp("augment")
-    avatar = root / "avatar"
-    assert main(["export", "avatar", str(tiny_run), "--out", str(avatar)]) == 0
-    subject = Path(load_avatar(avatar).meta["source"]["subject"])
-    models = {}
-    for name, conditions, size in (("refiner", "tex+geo", 32), ("refiner_none", "none", 32), ("refiner16", "tex+geo", 16),
-                                   ("refiner_warp", "warp+geo", 32)):
-        model = open_zero_inits(create_refiner(tiny_config(conditions=conditions)), std=0.2)
-        export_refiner_onnx(model, root / f"{name}.onnx", size=size, gate_frames=2)
-        models[name] = root / f"{name}.onnx"
-    torch.manual_seed(0)
-    ex = create_examiner(TINY)
-    with torch.no_grad():  # spread the scores away from 0.5
-        for p in ex.parameters():
-            p.add_(0.3 * torch.randn_like(p))
-    export_examiner_onnx(ex, root / "examiner.onnx", gate_frames=2)
-    export_model(trained_like(AvatarConfig(**SMALL)), root / "other_avatar", body_model="test")  # a 4-joint body
-    return SimpleNamespace(root=root, subject=subject, avatar=avatar, examiner=root / "examiner.onnx",
-                           other_avatar=root / "other_avatar", **models)
-
-
-def run(inputs, out, examiner=True, **kw):
-    kw = {"frames": "all", "limit": LIMIT, "seed": 7, "progress": False, "keep_carried": False, **kw}  # the Refiner's frames
-    return augment(inputs.subject, inputs.avatar, inputs.refiner, out, inputs.examiner if examiner else None, **kw)
-
-
-def snapshot(out: Path) -> dict:
-    """Every file's bytes; augment.json and the records as JSON without their timings."""
-    files = {}
-    for p in sorted(out.rglob("*")):
-        if p.is_file():
-            rel = p.relative_to(out).as_posix()
-            if rel == AUGMENT_JSON or rel.startswith("records/"):
-                d = json.loads(p.read_text())
-                d.pop("timing" if rel == AUGMENT_JSON else "seconds")
-                files[rel] = d
-            else:
-                files[rel] = p.read_bytes()
-    return files
-
 
 def records(out: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted((out / "records").glob("*.json"))]
-
-
-@pytest.fixture(scope="module")
-def straight(inputs):
-    out = inputs.root / "straight"
-    result = run(inputs, out)
-    return SimpleNamespace(out=out, result=result, files=snapshot(out))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -332,7 +270,7 @@ def test_bad_inputs_fail_before_any_work(inputs, tmp_path, capsys, args, message
 
 def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, straight, tmp_path, capsys, monkeypatch):
     # issue 18, case 2: the disk fills while the third frame's image is written
-    from tests.test_cli import full_disk_open
+    from tests.full_disk import full_disk_open
     from trioman.runtime import outputs
 
     out = tmp_path / "full"

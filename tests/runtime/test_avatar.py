@@ -11,63 +11,12 @@ import numpy as np
 import pytest
 
 from tests.conftest import run_python
-from tests.runtime.test_skeleton import random_mesh
+from tests.runtime.factories import edit_json, edit_npz, random_arrays, random_mesh, resign, write
 from trioman.runtime.avatar import Avatar, Gaussians
 from trioman.runtime.formats import FormatError, load_avatar, save_avatar
-from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.ply import read_ply, write_ply
 from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_quat
 from trioman.runtime.skeleton import blend_transforms
-
-
-def random_arrays(mesh, anisotropic=False, seed=0):
-    rng = np.random.default_rng(seed)
-    N = mesh.num_vertices
-    arrays = {
-        "positions": (mesh.vertices + 0.01 * rng.normal(size=(N, 3))).astype(np.float32),
-        "log_scales": rng.uniform(-6, -3, size=(N, 3 if anisotropic else 1)).astype(np.float32),
-        "rgb_logits": rng.normal(size=(N, 3)).astype(np.float32),
-        "opacities": np.ones(N, np.float32),
-        "skin_indices": mesh.skin_indices, "skin_weights": mesh.skin_weights,
-    }
-    if anisotropic:
-        arrays["local_quats"] = (np.array([1, 0, 0, 0]) + 0.3 * rng.normal(size=(N, 4))).astype(np.float32)
-    return arrays
-
-
-def write(tmp_path, anisotropic=False, name="a", **kw):
-    mesh = random_mesh(1, J=5, V=30)
-    return save_avatar(tmp_path / name, skeleton=mesh.skeleton, gaussians=random_arrays(mesh, anisotropic),
-                       body_model="test", pose_joints=["j1", "j2"], source={"run": "nowhere", "step": 3}, **kw), mesh
-
-
-def resign(root, name):
-    """Update avatar.json's sha256/bytes of ``name`` after a test edited it on purpose."""
-    meta = json.loads((root / "avatar.json").read_text())
-    meta["files"][name] = {"sha256": sha256_file(root / name), "bytes": (root / name).stat().st_size}
-    (root / "avatar.json").write_text(json.dumps(meta))
-
-
-def edit_npz(root, name, **changes):
-    with np.load(root / name, allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files}
-    for k, v in changes.items():
-        if v is None:
-            arrays.pop(k)
-        else:
-            arrays[k] = v
-    np.savez(root / name, **arrays)
-    resign(root, name)
-
-
-def edit_json(root, **changes):
-    meta = json.loads((root / "avatar.json").read_text())
-    for k, v in changes.items():
-        if v is None:
-            meta.pop(k)
-        else:
-            meta[k] = v
-    (root / "avatar.json").write_text(json.dumps(meta))
 
 
 @pytest.mark.parametrize("anisotropic", [False, True])

@@ -14,8 +14,7 @@ onnx = pytest.importorskip("onnx")
 
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
-from tests.runtime.test_avatar import edit_json, edit_npz, random_arrays  # noqa: E402
-from tests.runtime.test_skeleton import random_mesh  # noqa: E402
+from tests.runtime.factories import edit_json, edit_npz, random_arrays, random_mesh  # noqa: E402
 from trioman.runtime.formats import FormatError, load_avatar, save_avatar  # noqa: E402
 from trioman.runtime.skeleton import apply_transforms, blend_transforms  # noqa: E402
 

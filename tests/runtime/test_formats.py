@@ -14,59 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from trioman.runtime.cameras import look_at
+from tests.runtime.factories import H, N, W, make_fields, make_images
 from trioman.runtime.formats import FormatError, Subject, load_subject, save_subject
 from trioman.runtime.image_io import write_png
-from trioman.runtime.skeleton import Skeleton, SkinnedMesh
-
-W, H, N = 16, 12, 5
-
-
-def make_body() -> SkinnedMesh:
-    """A 3-joint chain along z with a thin strip of 4 triangles around it."""
-    skeleton = Skeleton(
-        joint_names=("root", "mid", "tip"),
-        parents=np.array([-1, 0, 1], np.int32),
-        joints=np.array([[0.0, 0.0, 0.9], [0.0, 0.0, 1.2], [0.0, 0.0, 1.5]]),
-    )
-    z = np.array([0.9, 1.2, 1.5])
-    vertices = np.concatenate([np.stack([np.full(3, -0.1), np.zeros(3), z], 1), np.stack([np.full(3, 0.1), np.zeros(3), z], 1)])
-    faces = np.array([[0, 3, 1], [1, 3, 4], [1, 4, 2], [2, 4, 5]], np.int32)
-    skin_indices = np.array([[0, 1], [1, 0], [2, 1]] * 2, np.int32)
-    skin_weights = np.array([[1.0, 0.0], [0.7, 0.3], [0.9, 0.1]] * 2, np.float32)
-    uvs = np.array([[0, 0], [0, 0.5], [0, 1], [1, 0], [1, 0.5], [1, 1]], np.float32)
-    return SkinnedMesh(skeleton, vertices, faces, skin_indices, skin_weights, uvs=uvs, uv_faces=faces.copy())
-
-
-def make_fields(n: int = N) -> dict:
-    rng = np.random.default_rng(0)
-    body = make_body()
-    poses_true = rng.normal(0, 0.3, (n, 3, 3)).astype(np.float32)
-    K = np.tile(np.array([[20.0, 0, W / 2], [0, 20.0, H / 2], [0, 0, 1]], np.float32), (n, 1, 1))
-    viewmat = np.stack([look_at((3.0 * np.cos(a), 3.0 * np.sin(a), 1.2 + 0.1 * a), (0.0, 0.0, 1.2)) for a in np.linspace(0, 1, n)]).astype(np.float32)
-    return dict(
-        body=body,
-        poses=(poses_true + rng.normal(0, 0.05, poses_true.shape)).astype(np.float32),
-        trans=rng.normal(0, 0.1, (n, 3)).astype(np.float32),
-        K=K,
-        viewmat=viewmat,
-        split=["train"] * (n - 2) + ["test"] * 2,
-        sequence=["walk"] * (n - 2) + ["dance"] * 2,
-        width=W,
-        height=H,
-        body_model="test-chain",
-        background=(1.0, 1.0, 1.0),
-        phenotype={"height": 0.5, "weight": 0.25},
-        generator={"tool": "pytest", "seed": np.int64(7), "pose_noise_sigma": 0.05},
-        poses_true=poses_true,
-    )
-
-
-def make_images(n: int = N, seed: int = 1):
-    rng = np.random.default_rng(seed)
-    images = [rng.random((H, W, 3), dtype=np.float32) for _ in range(n)]
-    masks = [rng.random((H, W), dtype=np.float32) for _ in range(n)]
-    return images, masks
 
 
 @pytest.fixture

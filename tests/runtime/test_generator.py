@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.runtime.test_motions import JOINTS, NAMES, PARENTS
+from tests.runtime.factories import JOINTS, NAMES, PARENTS
 from trioman.runtime import generator as gen
 from trioman.runtime.cameras import camera_center, orbit_viewmat
 from trioman.runtime.skeleton import Skeleton

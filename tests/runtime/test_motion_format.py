@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.runtime.test_formats import make_fields, make_images
-from tests.runtime.test_motions import JOINTS, NAMES, PARENTS
+from tests.runtime.factories import JOINTS, NAMES, PARENTS, make_fields, make_images
 from trioman.runtime import motions
 from trioman.runtime.formats import FormatError, load_motion, save_motion, save_subject
 from trioman.runtime.formats.motion import motion_from_spec, motion_from_subject

@@ -1,16 +1,9 @@
 import numpy as np
 import pytest
 
+from tests.runtime.factories import JOINTS, NAMES, PARENTS
 from trioman.runtime import motions
 from trioman.runtime.skeleton import Skeleton
-
-NAMES = ["root", "pelvis.L", "upperleg01.L", "lowerleg01.L", "foot.L", "pelvis.R", "upperleg01.R", "lowerleg01.R",
-         "foot.R", "spine05", "spine04", "spine01", "upperarm01.L", "lowerarm01.L", "upperarm01.R", "lowerarm01.R",
-         "neck01", "head"]
-PARENTS = [-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 12, 11, 14, 11, 16]
-JOINTS = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, -0.05], [0.12, 0, -0.45], [0.14, 0, -0.85], [-0.1, 0, 0],
-                   [-0.1, 0, -0.05], [-0.12, 0, -0.45], [-0.14, 0, -0.85], [0, 0, 0.05], [0, 0, 0.2], [0, 0, 0.4],
-                   [0.18, 0, 0.45], [0.35, 0, 0.25], [-0.18, 0, 0.45], [-0.35, 0, 0.25], [0, 0, 0.55], [0, 0, 0.65]])
 
 
 @pytest.fixture

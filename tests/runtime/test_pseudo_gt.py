@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.runtime.test_aligned import FRONT, K, MESH, POSE, SIZE, TRANS, paint, views
+from tests.runtime.painted_box import FRONT, K, MESH, POSE, SIZE, TRANS, paint, views
 from trioman.runtime.aligned import AlignConfig, Aligner
 from trioman.runtime.generator import GeneratorConfig, sample
 from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames, needs_aligner

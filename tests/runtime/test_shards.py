@@ -7,18 +7,17 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("onnx")
 
-from tests.export.test_avatar import tiny_run, trained_like  # noqa: E402,F401 (fixture)
-from tests.runtime.test_augment import LIMIT, inputs, snapshot, straight  # noqa: E402,F401 (fixtures)
+from tests.runtime.augment_runs import LIMIT, snapshot  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.shards import Shard  # noqa: E402
 
 
-def argv(inputs, out, *extra):  # noqa: F811 (the fixture) -- the flags of test_augment's run()
+def argv(inputs, out, *extra):  # the flags of tests.runtime.augment_runs.run()
     return ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner), "--examiner",
             str(inputs.examiner), "--out", str(out), "--frames", "all", "--limit", str(LIMIT), "--seed", "7", "--no-keep-carried", "--quiet", *extra]
 
 
-def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, capsys):  # noqa: F811
+def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, capsys):
     out = tmp_path / "sharded"
     assert main(argv(inputs, out, "--shard", "2/3")) == 0
     assert "augment: shard 2/3 done (1 source frames" in capsys.readouterr().out
@@ -43,7 +42,7 @@ def test_shards_merge_into_the_one_process_output(inputs, straight, tmp_path, ca
     (lambda rec: {**rec, "seed": rec["seed"] + 1}, r"seed: expected \d+ \(the run's seed 7 for frame "),  # issue 41, D9
     (None, "malformed JSON"),  # truncated
 ])
-def test_a_corrupt_shard_record_is_named_and_nothing_moves(inputs, tmp_path, capsys, corrupt, message):  # noqa: F811
+def test_a_corrupt_shard_record_is_named_and_nothing_moves(inputs, tmp_path, capsys, corrupt, message):
     import json
     import re
 
@@ -68,7 +67,7 @@ def test_shard_rule_and_parse():
         Shard.parse("3/3")
 
 
-def test_a_swapped_frame_file_in_a_shard_is_named_and_nothing_moves(inputs, tmp_path, capsys):  # noqa: F811
+def test_a_swapped_frame_file_in_a_shard_is_named_and_nothing_moves(inputs, tmp_path, capsys):
     """Issue 26 (minor): a PNG swapped inside a shard went unnoticed at --merge; records keep each file's sha256."""
     import json
 
@@ -95,7 +94,7 @@ def test_a_swapped_frame_file_in_a_shard_is_named_and_nothing_moves(inputs, tmp_
     assert main(argv(inputs, out, "--merge")) == 0
 
 
-def test_a_shard_frame_that_is_a_link_is_named_and_nothing_moves(inputs, tmp_path, capsys):  # noqa: F811
+def test_a_shard_frame_that_is_a_link_is_named_and_nothing_moves(inputs, tmp_path, capsys):
     """Issue 41, D9: --merge moved a link to a file outside into the output (the same bytes pass the sha256)."""
     import json
     import shutil

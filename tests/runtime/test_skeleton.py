@@ -3,22 +3,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.runtime.factories import random_mesh
 from trioman.runtime.rotations import axis_angle_to_matrix
-from trioman.runtime.skeleton import Skeleton, SkinnedMesh
-
-
-def random_mesh(seed: int, J: int = 7, V: int = 40, K: int = 3) -> SkinnedMesh:
-    rng = np.random.default_rng(seed)
-    parents = np.array([-1] + [int(rng.integers(0, j)) for j in range(1, J)])
-    sk = Skeleton(tuple(f"j{j}" for j in range(J)), parents, rng.normal(size=(J, 3)))
-    w = rng.random((V, K)) + 0.01
-    return SkinnedMesh(
-        skeleton=sk,
-        vertices=rng.normal(size=(V, 3)),
-        faces=rng.integers(0, V, size=(10, 3)),
-        skin_indices=rng.integers(0, J, size=(V, K)),
-        skin_weights=(w / w.sum(1, keepdims=True)).astype(np.float32),
-    )
+from trioman.runtime.skeleton import SkinnedMesh
 
 
 def brute_force_pose(mesh: SkinnedMesh, pose: np.ndarray, trans: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.runtime.test_aligned import CENTER, FRONT, K, MESH, POSE, SIZE, TRANS
+from tests.runtime.painted_box import CENTER, FRONT, K, MESH, POSE, SIZE, TRANS
 from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
 from trioman.runtime.cameras import orbit_viewmat
 from trioman.runtime.mesh_raster import interpolate, rasterize_mesh, sample_texture

@@ -15,7 +15,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tests.toolkit.test_model_training import fake_triplets  # noqa: E402
+from tests.toolkit.factories import fake_triplets  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
 from trioman.toolkit.distributed import Ranks, process_group  # noqa: E402

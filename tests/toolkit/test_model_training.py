@@ -9,35 +9,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from tests.toolkit.factories import S  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.bench.models import ModelsBenchConfig, bench_models, models_markdown  # noqa: E402
-from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
 from trioman.toolkit.model_training import FitConfig, random_crop  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
-
-S = 32
-
-
-def fake_triplets(path, seed, n=8):
-    rng = np.random.default_rng(seed)
-    img = lambda: rng.integers(0, 256, (n, S, S, 3), dtype=np.uint8)  # noqa: E731
-    np.savez(path, meta=np.array(json.dumps({"version": 2})), gt=img(), coarse=img(), normal=img(),
-             mask=rng.integers(0, 256, (n, S, S), dtype=np.uint8), frame=np.arange(n, dtype=np.int32),
-             split=np.array(["train"] * (n - 3) + ["test"] * 3), sequence=np.array(["a"] * (n - 3) + ["b"] * 3),
-             view_yaw=rng.uniform(-3, 3, n).astype(np.float32), aligned=img(),
-             valid=(rng.random((n, S, S)) < 0.5).astype(np.uint8) * 255, aligned_from=(np.arange(n, dtype=np.int32) + 1) % n)
-
-
-@pytest.fixture(scope="module")
-def corpus(tmp_path_factory):
-    root = tmp_path_factory.mktemp("corpus")
-    subjects = [{"name": "s00", "role": "train"}, {"name": "s01", "role": "train"}, {"name": "s02", "role": "heldout"}]
-    for s in subjects:
-        folder = root / "triplets" / ("all" if s["role"] == "train" else "heldout")
-        folder.mkdir(parents=True, exist_ok=True)
-        fake_triplets(folder / f"{s['name']}.npz", seed=len(s["name"]) + int(s["name"][1:]))
-    (root / CORPUS_JSON).write_text(json.dumps({"config": {}, "subjects": subjects}))
-    return root
 
 
 def test_random_crop_takes_one_window_per_sample(corpus):

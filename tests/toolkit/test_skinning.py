@@ -5,7 +5,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tests.runtime.test_skeleton import random_mesh  # noqa: E402
+from tests.runtime.factories import random_mesh  # noqa: E402
 from trioman.runtime.rotations import axis_angle_to_matrix as aa_np, matrix_to_quat as quat_np  # noqa: E402
 from trioman.toolkit.body.skinning import apply_transforms, blend_transforms, skinning_transforms  # noqa: E402
 from trioman.toolkit.rotations import axis_angle_to_matrix, matrix_to_quat, matrix_to_rot6d  # noqa: E402

@@ -7,7 +7,7 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-from tests.toolkit.train.test_loop import TINY_AVATAR  # noqa: E402
+from tests.toolkit.train.factories import TINY_AVATAR  # noqa: E402
 from trioman.runtime.formats import FormatError, load_subject  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402

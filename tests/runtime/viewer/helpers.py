@@ -1,5 +1,5 @@
 """Tiny inputs of the viewer tests, built without torch: an avatar on the 3-joint chain of
-tests/runtime/test_formats.py, a subject on that body, and an augment output that names both."""
+tests/runtime/factories.py, a subject on that body, and an augment output that names both."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.runtime.test_formats import make_fields
+from tests.runtime.factories import make_fields
 from trioman.runtime.augment import frame_seed
 from trioman.runtime.formats import load_subject, save_avatar, save_subject
 from trioman.runtime.generator import GeneratorConfig, sample

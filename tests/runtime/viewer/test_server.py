@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("viser", reason="the viewer needs viser: pip install 'trioman[viewer]'")
 
 from tests.conftest import run_python  # noqa: E402
-from tests.runtime.test_avatar import edit_json  # noqa: E402
+from tests.runtime.factories import edit_json  # noqa: E402
 from tests.runtime.viewer.helpers import N_GAUSSIANS, make_augment_output, make_avatar, make_subject  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.viewer.app import open_viewer  # noqa: E402

@@ -5,26 +5,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tests.runtime.test_skeleton import random_mesh  # noqa: E402
-from trioman.runtime.skeleton import Skeleton, SkinnedMesh  # noqa: E402
+from tests.runtime.factories import random_mesh  # noqa: E402
+from tests.toolkit.avatar.factories import SMALL, grid_mesh  # noqa: E402
+from trioman.runtime.skeleton import SkinnedMesh  # noqa: E402
 from trioman.toolkit.avatar.mesh_ops import avatar_points, level_interpolation, subdivide  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig, GaussianAvatar  # noqa: E402
-
-SMALL = dict(triplane_channels=4, triplane_res=8, hidden=16, knn=3)
-
-
-def grid_mesh(J: int = 4) -> SkinnedMesh:
-    """A small closed-ish surface (an icosphere) skinned to a chain of joints along z."""
-    import trimesh
-
-    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
-    verts = np.asarray(sphere.vertices)
-    names = ("root", "spine01", "neck01", "head")[:J]
-    joints = np.stack([np.zeros(J), np.zeros(J), np.linspace(-0.3, 0.3, J)], 1)
-    sk = Skeleton(names, np.arange(-1, J - 1), joints)
-    near = np.argsort(np.abs(verts[:, 2:3] - joints[None, :, 2]), axis=1)[:, :2]
-    w = np.array([0.7, 0.3], np.float32)
-    return SkinnedMesh(sk, verts, np.asarray(sphere.faces), near, np.tile(w, (len(verts), 1)))
 
 
 def test_gaussians_follow_the_numpy_lbs_at_zero_offsets():

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from tests.test_imports import cycle, graph
+from tests.imports_graph import cycle, graph
 
 
 def subpackage(module: str) -> str:

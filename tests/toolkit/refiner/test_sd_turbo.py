@@ -14,9 +14,8 @@ import pytest
 import torch
 
 pytest.importorskip("diffusers", reason="the sd-turbo backbone needs the diffusers package (pip install 'trioman[diffusion]')")
+pytest.importorskip("onnx")  # the ONNX parity and export tests
 
-from tests.export.test_avatar import tiny_run  # noqa: E402,F401 (fixture)
-from tests.toolkit.test_model_training import corpus  # noqa: E402,F401 (fixture)
 from tests.toolkit.refiner.helpers import synthetic_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, refiner_loop  # noqa: E402
 from trioman.toolkit.refiner.sd_turbo import PROMPT_FILE, SdTurboFolderError, SdTurboRefiner, write_tiny_folder  # noqa: E402
@@ -145,7 +144,7 @@ def test_a_warp_refiner_exports_with_parity(folder, tmp_path):
     assert m.conditions == "warp+geo" and m.input_names == ("coarse", "reference", "normal")
 
 
-def test_augment_with_the_exported_model(exported, tiny_run, tmp_path):  # noqa: F811
+def test_augment_with_the_exported_model(exported, tiny_run, tmp_path):
     from trioman.cli import main
     from trioman.runtime.augment import augment
     from trioman.runtime.formats import load_avatar, load_subject
@@ -188,7 +187,7 @@ def test_no_folder_says_so(tmp_path):
         create_refiner(RefinerConfig(image_size=S, backbone="sd-turbo", pretrained_path=str(tmp_path / "nope")))
 
 
-def test_train_refiner_and_export_commands(folder, corpus, tmp_path):  # noqa: F811
+def test_train_refiner_and_export_commands(folder, corpus, tmp_path):
     from trioman.cli import main
 
     run = tmp_path / "run"
@@ -216,7 +215,7 @@ def test_export_over_the_protobuf_limit_writes_external_data(folder, tmp_path, m
     assert onnx_error(model, one) <= 1e-3
 
 
-def test_bench_models_with_the_sd_turbo_backbone(folder, corpus, tmp_path):  # noqa: F811
+def test_bench_models_with_the_sd_turbo_backbone(folder, corpus, tmp_path):
     from trioman.bench.models import ModelsBenchConfig, bench_models
 
     r = bench_models(ModelsBenchConfig(corpus=str(corpus), subjects=2, heldout=1, size=S, out=str(tmp_path / "bench"),

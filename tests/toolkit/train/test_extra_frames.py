@@ -11,7 +11,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-from tests.toolkit.avatar.test_model import grid_mesh  # noqa: E402
+from tests.toolkit.avatar.factories import grid_mesh  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_subject, save_subject  # noqa: E402
 from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402

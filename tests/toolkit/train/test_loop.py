@@ -12,14 +12,12 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from tests.conftest import run_python  # noqa: E402
-from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
+from tests.toolkit.train.factories import TINY_AVATAR  # noqa: E402
 from trioman.toolkit.evaluate import evaluate, load_run  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig, preset  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
-
-TINY_AVATAR = AvatarConfig(keep=0.3, triplane_channels=4, triplane_res=16, hidden=32)
 
 
 @pytest.fixture(scope="module")
@@ -267,7 +265,7 @@ def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_pat
     # torch.save to a file reported a full disk as "RuntimeError: ... unexpected pos" (issue 18, case 2)
     import errno
 
-    from tests.test_cli import full_disk_open
+    from tests.full_disk import full_disk_open
     from trioman.runtime import outputs
     from trioman.toolkit.loops.checkpoint import checkpoint_path, save_checkpoint
 
@@ -279,7 +277,7 @@ def test_a_full_disk_while_checkpointing_is_enospc_naming_the_checkpoint(tmp_pat
 
 
 def test_command_line_train_on_a_full_disk_is_one_line_and_leaves_no_run(subject, tmp_path, capsys, monkeypatch):
-    from tests.test_cli import full_disk_open
+    from tests.full_disk import full_disk_open
     from trioman.cli import main
     from trioman.runtime import outputs
 

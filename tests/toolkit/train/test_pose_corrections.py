@@ -7,7 +7,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-from tests.toolkit.train.test_loop import TINY_AVATAR  # noqa: E402
+from tests.toolkit.train.factories import TINY_AVATAR  # noqa: E402
 from trioman.runtime.formats import load_subject, save_subject  # noqa: E402
 from trioman.toolkit.evaluate import evaluate, run_poses  # noqa: E402
 from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402

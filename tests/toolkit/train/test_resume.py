@@ -12,7 +12,7 @@ pytest.importorskip("anny")
 from trioman.cli import main  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
-from tests.toolkit.train.test_loop import TINY_AVATAR as TINY  # noqa: E402
+from tests.toolkit.train.factories import TINY_AVATAR as TINY  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig, preset  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
 
