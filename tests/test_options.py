@@ -110,6 +110,14 @@ def test_tuple_fields_take_their_items_after_the_flag_once_per_flag_or_split():
         p.parse_args(["--frame", "x", "--name", "n"])  # each item parsed as the item type
 
 
+def test_a_command_line_repeats_the_flag_of_each_item_of_a_repeated_option():
+    from trioman.commands import command_line
+
+    args = _parser(Lists).parse_args(["--frame", "3", "--frame", "1", "--files", "x.npz", "y.npz", "--name", "n"])
+    assert command_line("toy", lambda p: add_options(p, Lists), vars(args)) == \
+        "trioman toy --name n --frame 3 --frame 1 --files x.npz y.npz"
+
+
 def test_a_field_without_a_default_is_a_required_option():
     assert {a.dest for a in _parser(Lists)._actions if a.required} == {"name"}
     with pytest.raises(SystemExit):
