@@ -54,30 +54,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from trioman.bench.ablation_config import ALL_VARIANTS, LEVERS, AblationBenchConfig, AblationPlan
 from trioman.toolkit.train.augment_config import AugmentConfig
 
 if TYPE_CHECKING:
     from trioman.toolkit.fit.config import FitConfig
     from trioman.toolkit.train.config import TrainConfig
 
-# (name, augment mode, refiner condition, seeded): the order of the report's rows.
-VARIANTS = (
-    ("baseline", None, None, True),
-    ("baseline_long", None, None, True),
-    ("G", "coarse", None, False),
-    ("aligned", "aligned", None, False),
-    ("GR_none", "refined", "none", False),
-    ("GR_tex", "refined", "tex", False),
-    ("GR_tex+geo", "refined", "tex+geo", False),
-    ("GR_warp+geo", "refined", "warp+geo", False),
-    ("GRk_warp+geo", "refined", "warp+geo", False),
-    ("GRE", "examined", "warp+geo", True),
-    ("ceiling_seen", "truth_seen", None, False),
-    ("ceiling", "truth", None, False),
-)
-# Levers: variants beyond the paper's, trained when their option is given; same tuple layout.
-LEVERS = (("GRd_tex+geo", "refined", "tex+geo", False),)
-ALL_VARIANTS = VARIANTS + LEVERS
 # AugmentConfig settings of a variant beyond its mode and Refiner condition.
 FUSED_TEXTURE = 256  # texels a side of the fused texture's row in the frame-level table (AlignConfig.texture)
 SETTINGS = {"GRk_warp+geo": {"keep_carried": True}, "GRE": {"keep_carried": True}}
@@ -95,118 +78,6 @@ LABELS = {
 # The paper's subject 00028 (PSNR dB): Table 1 against the baseline, Table 2 against coarse frames.
 PAPER_TABLE1 = {"baseline": 30.5842, "G": 31.2905, "GR_tex+geo": 32.6586, "GRE": 33.0412}
 PAPER_TABLE2 = {"G": 31.2905, "GR_none": 30.9897, "GR_tex": 32.1369, "GR_tex+geo": 32.6586}
-
-
-@dataclass(frozen=True)
-class AblationPlan:
-    iterations: int = 600  # real-frame steps of every run
-    seeds: int = 2
-    # the online schedule and mask: AugmentConfig's own defaults (what `train --augment` runs)
-    start: float = AugmentConfig.start
-    share: float = AugmentConfig.share
-    refresh: int = AugmentConfig.refresh
-    pool: int = AugmentConfig.pool
-    weight: float = AugmentConfig.weight
-    detail_sigma: float | None = None  # trains the GRd_tex+geo lever with this blur sigma (pixels)
-    mask: str = AugmentConfig.mask
-    coverage: float = 1.0  # share of a full turn the held-out subjects' training frames span (re-rendered when < 1)
-    pose_noise: float = 0.0  # degrees of fitting noise on the held-out subjects' stored poses (re-rendered when > 0)
-    reach: float = 1.0  # the Generator's camera sigmas (azimuth, elevation, log-distance) as a multiple of their defaults
-    poses: str = "true"  # the held-out subjects' stored poses: "true" (with pose_noise) or "fit" (`trioman fit` on their video)
-
-    @property
-    def capture(self) -> str:
-        """The suffix of the subjects (and the unaugmented runs) of this plan's capture regime ('' for the corpus's own)."""
-        if self.poses == "fit":
-            return f"-cov{self.coverage:g}-fit"
-        return "" if (self.coverage, self.pose_noise) == (1.0, 0.0) else f"-cov{self.coverage:g}-noise{self.pose_noise:g}"
-
-    @property
-    def regime(self) -> str:
-        """The suffix of the augmented runs: the capture regime, and the Generator's reach when not the default."""
-        return self.capture + ("" if self.reach == 1.0 else f"-reach{self.reach:g}")
-
-    @property
-    def camera(self) -> tuple[float, float, float] | None:
-        """AugmentConfig.camera of the plan's reach (None: the Generator's defaults)."""
-        from trioman.runtime.generator import GeneratorConfig
-
-        g = GeneratorConfig()
-        return None if self.reach == 1.0 else tuple(self.reach * s for s in (g.azimuth_sigma, g.elevation_sigma, g.distance_sigma))
-
-    def run(self, out: Path, heldout: str, variant: str, seed: int = 0) -> Path:
-        """The run folder of ``variant`` on held-out subject ``heldout``: an unaugmented run does not depend on the
-        Generator's reach, so regimes that differ only in reach share it."""
-        augmented = next(m for n, m, *_ in ALL_VARIANTS if n == variant) is not None
-        return out / "runs" / (heldout + (self.regime if augmented else self.capture)) / f"{variant.replace('+', '_')}_s{seed}"
-
-    @property
-    def variants(self) -> tuple[tuple, ...]:
-        """The (name, mode, condition, seeded) rows this plan trains."""
-        return VARIANTS + (LEVERS if self.detail_sigma else ())
-
-    @property
-    def augmented_iterations(self) -> int:
-        return int(round(self.iterations / (self.start + (1 - self.start) * (1 - self.share))))
-
-
-@dataclass(frozen=True)
-class AblationBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: models, runs, subjects and figures go in it
-    corpus: str | Path = "out/corpus"  # the corpus folder, built when absent
-    size: int = 128  # image side of a corpus built here
-    subjects: int = 10  # training subjects of a corpus built here
-    heldout: int = 3  # held-out subjects of a corpus built here
-    baseline_frames: str = "all"  # the one corpus variant the Refiners and the Examiner train on
-    style: str = "plain"  # the synth style of a corpus built here
-    refiner_steps: int = 1000  # training steps of each Refiner
-    refiner_size: str = "compact"  # the Refiners' widths
-    examiner: str = "examiner_nano"  # the Examiner's config name
-    examiner_steps: int = 1000  # the Examiner's training steps
-    batch: int = 4  # the models' training batch
-    crop: int = 64  # the Refiners' training crop side
-    iterations: int = AblationPlan.iterations  # real-frame steps of every avatar run
-    seeds: int = AblationPlan.seeds  # seeds of the seeded rows
-    detail_sigma: float | None = AblationPlan.detail_sigma  # trains the GRd_tex+geo lever with this blur sigma (pixels)
-    coverage: float = AblationPlan.coverage  # share of a full turn the held-out subjects' training frames span
-    pose_noise: float = AblationPlan.pose_noise  # degrees of fitting noise on the held-out subjects' stored poses
-    poses: str = AblationPlan.poses  # "true" (with pose_noise) or "fit": the held-out subjects fitted from their video
-    reach: float = AblationPlan.reach  # the Generator's camera sigmas as a multiple of their defaults
-    augment_start: float = AblationPlan.start  # warm-up share of an augmented run
-    augment_pool: int = AblationPlan.pool  # pseudo-GT frames per pool rebuild
-    augment_refresh: int = AblationPlan.refresh  # steps between pool rebuilds
-    augment_mask: str = AblationPlan.mask  # the pseudo frames' mask
-    variants: tuple[str, ...] | None = None  # the rows trained (None: all); the others are reported when finished
-    ablation_subjects: tuple[str, ...] | None = None  # held-out subjects of the corpus (None: all of them)
-    training: bool = True  # False: report the finished runs, train nothing
-    jobs: int = 1  # avatar runs trained at once, each in its own process with an equal share of the cores
-
-    def __post_init__(self) -> None:
-        from trioman.bench.common import check_choice, check_int, check_names, check_path
-
-        check_path(self, "out")
-        check_path(self, "corpus")
-        check_int(self, "size", 2)
-        check_int(self, "heldout", 1)
-        for name in ("subjects", "refiner_steps", "examiner_steps", "batch", "crop", "iterations", "seeds", "jobs"):
-            check_int(self, name)
-        if self.baseline_frames not in ("all", "subset"):
-            raise ValueError(f"baseline_frames: ablation trains on one corpus variant, 'all' or 'subset', "
-                             f"got {self.baseline_frames!r}")
-        check_choice(self, "refiner_size", ("compact", "default"))
-        check_choice(self, "poses", ("true", "fit"))
-        if self.poses == "fit" and self.pose_noise:
-            raise ValueError(f"pose_noise: the fitted poses carry the fit's own error; with poses 'fit' it must be 0, "
-                             f"got {self.pose_noise!r}")
-        AugmentConfig(start=self.augment_start, refresh=self.augment_refresh, pool=self.augment_pool,
-                      mask=self.augment_mask)  # its checks, naming its fields (the same flags)
-        for name in ("variants", "ablation_subjects"):
-            if getattr(self, name) is not None:
-                check_names(self, name)
-        if not (isinstance(self.reach, (int, float)) and 0 < self.reach <= 10):
-            raise ValueError(f"reach: the Generator's camera sigmas as a multiple of their defaults, in (0, 10], got {self.reach!r}")
-        if not isinstance(self.training, bool):
-            raise ValueError(f"training: must be a bool, got {self.training!r}")
 
 
 def _variant_runs(plan: AblationPlan) -> list[tuple[str, int]]:
@@ -232,8 +103,7 @@ def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Pa
         paths["detail_sigma"] = plan.detail_sigma
     settings = {"keep_carried": False} if mode in ("refined", "examined") else {}  # the paper's rows keep nothing
     settings.update(SETTINGS.get(name, {}))
-    aug = AugmentConfig(mode=mode, start=plan.start, share=plan.share, refresh=plan.refresh, pool=plan.pool,
-                        weight=plan.weight, mask=plan.mask, camera=plan.camera, **paths, **settings)
+    aug = dataclasses.replace(plan.schedule, mode=mode, camera=plan.camera, **paths, **settings)
     return preset("quick", iterations=iterations, seed=seed, avatar=avatar, augment=aug, checkpoint_every=iterations)
 
 
@@ -329,7 +199,7 @@ def plan_jobs(plan: AblationPlan, out: Path, subjects: dict[str, Path], models: 
     ``threads`` torch threads, the count the forks train with; toolkit/train/fork.py)."""
     from trioman.toolkit.corpus import finished
 
-    step = int(round(plan.start * plan.augmented_iterations))
+    step = int(round(plan.schedule.start * plan.augmented_iterations))
     warmups, jobs = [], []
     for h, subject in subjects.items():
         runs = [(v, seed, plan.run(out, h, v, seed)) for v, seed in _variant_runs(plan) if only is None or v in only]
@@ -449,7 +319,7 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     unknown = sorted(set(names) - set(heldout))
     if unknown:
         raise ValueError(f"ablation_subjects: {unknown} are not held-out subjects of {corpus} (held out: {heldout})")
-    plan = plan_of(config)
+    plan = config.plan
     only = set(config.variants) if config.variants else None
     known = {v for v, *_ in plan.variants}
     if only is not None and not only <= known:
@@ -501,7 +371,7 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     trips = [triplet_paths(corpus, config.baseline_frames)["heldout"][heldout.index(n)] for n in names]
     check = {c: condition_check(models[f"refiner_{c}"], trips, c) for c in ("tex+geo", "warp+geo")
              if f"refiner_{c}" in models}
-    report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": config.baseline_frames, "plan": plan.__dict__ | {"augmented_iterations": plan.augmented_iterations},
+    report = {"corpus": str(corpus), "subjects": [n + plan.regime for n in names], "baseline_frames": config.baseline_frames, "plan": plan.record(),
               "results": results, "models": model_info, "condition_check": check, "pseudo_gt_truth": truth, "wall_seconds": time.perf_counter() - t0,
               "lpips": lpips is not None, "missing_runs": missing}
     if plan.poses == "fit":
@@ -509,14 +379,6 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     report["summary"] = summarise(results)
     _bar_charts(report, out)
     return report
-
-
-def plan_of(config: AblationBenchConfig) -> AblationPlan:
-    """The avatar runs' plan of ``config``."""
-    return AblationPlan(iterations=config.iterations, seeds=config.seeds, start=config.augment_start,
-                        refresh=config.augment_refresh, pool=config.augment_pool, detail_sigma=config.detail_sigma,
-                        mask=config.augment_mask, coverage=config.coverage, pose_noise=config.pose_noise, reach=config.reach,
-                        poses=config.poses)
 
 
 def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig | None = None) -> Path:

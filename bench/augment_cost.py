@@ -15,29 +15,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-from trioman.bench.common import check_int, check_path
+from trioman.bench.config import AugmentCostBenchConfig
 
 TARGET_RATIO = 1.3
 SIZES = (128, 256)
-
-
-@dataclass(frozen=True)
-class AugmentCostBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: the subjects and the runs go in it
-    size: int | None = None  # one image side, pixels (None: 128 and 256)
-    frames: int = 96  # subject frames
-    iterations: int = 300  # training steps of both runs
-    seed: int = 0  # the subject's seed
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_int(self, "size", 16, optional=True)
-        check_int(self, "frames", 6)
-        check_int(self, "iterations")
-        check_int(self, "seed", 0)
 
 
 def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:

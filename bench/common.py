@@ -6,38 +6,15 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 
-def check_int(config: Any, name: str, minimum: int = 1, optional: bool = False) -> None:
-    """ValueError naming the field ``name`` of ``config`` and its value unless it is an integer >= ``minimum``
-    (or None, when ``optional``)."""
+def check_names(config: Any, name: str) -> None:
+    """ValueError naming the field ``name`` of ``config`` unless it is a non-empty tuple of non-empty strings."""
     value = getattr(config, name)
-    if optional and value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name}: must be an integer >= {minimum}{' or None' if optional else ''}, got {value!r}")
-
-
-def check_choice(config: Any, name: str, choices: Iterable[str]) -> None:
-    """ValueError naming the field ``name`` of ``config``, its value and the choices unless it is one of them."""
-    choices = tuple(choices)
-    if getattr(config, name) not in choices:
-        raise ValueError(f"{name}: expected one of {choices}, got {getattr(config, name)!r}")
-
-
-def check_names(config: Any, name: str, allowed: Iterable[str] | None = None, empty: bool = False) -> None:
-    """ValueError naming the field ``name`` of ``config`` unless it is a tuple of non-empty strings (of ``allowed``
-    when given), not empty unless ``empty``."""
-    value = getattr(config, name)
-    if not isinstance(value, tuple) or not all(isinstance(v, str) and v for v in value) or not (value or empty):
-        raise ValueError(f"{name}: expected a {'' if empty else 'non-empty '}tuple of names, got {value!r}")
-    allowed = None if allowed is None else tuple(allowed)
-    unknown = [v for v in value if allowed is not None and v not in allowed]
-    if unknown:
-        raise ValueError(f"{name}: unknown {unknown[0]!r}; expected some of {allowed}")
+    if not isinstance(value, tuple) or not value or not all(isinstance(v, str) and v for v in value):
+        raise ValueError(f"{name}: expected a non-empty tuple of names, got {value!r}")
 
 
 def check_path(config: Any, name: str, optional: bool = False) -> None:

@@ -6,41 +6,18 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from trioman.bench.common import best_time, check_int, check_path
+from trioman.bench.common import best_time
+from trioman.bench.config import DeployBenchConfig
 from trioman.bench.render import avatar_scene, scene_args
 from trioman.runtime.metrics import psnr
 from trioman.runtime.render.reference import rasterize_reference
 
 OPT_LEVELS = ("disable", "basic", "extended", "all")
-
-
-@dataclass(frozen=True)
-class DeployBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: the ONNX export, the augment run and the figure go in it
-    corpus: str | Path = "out/corpus"  # the corpus of the `bench models` report (its held-out test frames)
-    models: str | Path = "out/bench_models"  # the `bench models` report folder whose trained runs are exported
-    frames: int | None = None  # held-out test frames measured (None: all of them)
-    avatar_run: str | Path | None = None  # the renderer rows' trained run folder (None: the untrained default avatar)
-    size: int = 256  # the renderer rows' image side, pixels
-    repeats: int = 5  # timed calls per variant (the best counts)
-    threads: int | None = None  # onnxruntime intra-op threads (None: onnxruntime's)
-    augment_frames: int = 8  # source frames of the augment run
-
-    def __post_init__(self) -> None:
-        for name in ("out", "corpus", "models"):
-            check_path(self, name)
-        check_path(self, "avatar_run", optional=True)
-        for name in ("frames", "threads"):
-            check_int(self, name, optional=True)
-        check_int(self, "size", 2)
-        check_int(self, "repeats")
-        check_int(self, "augment_frames")
 
 
 def _ms(fn, repeats: int) -> float:

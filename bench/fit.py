@@ -5,36 +5,12 @@ frame and peak memory."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
-from trioman.bench.common import check_choice, check_int, check_path, machine, peak_rss_mib
+from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.config import FitBenchConfig
 
 TARGETS = {"pa_mpjpe_mm": 40.0, "seconds_per_300_frames": 300.0, "peak_rss_mib": 3072.0}
-
-
-@dataclass(frozen=True)
-class FitBenchConfig:
-    out: str | Path = "out/bench"  # the report folder; subjects, videos and fits go in out/fit_work
-    seed: int = 1004  # the first subject's seed (the ablation's held-out subjects are 1004-1006)
-    subjects: int = 3
-    size: int = 540  # the frames' long side
-    frames: int = 375  # subject frames; the video holds the training 80 % (300)
-    coverage: float = 1.0  # share of a full turn the video's turn spans
-    style: str = "realistic"
-    focal: str = "prior"  # "prior": the fit refines a phone's focal; "truth": it is given the subject's
-    iterations: int | None = None  # the fit's iterations over every frame and on the keyframes (default: the command's)
-    avatar_iterations: int = 0  # > 0: the cost of fitting, an avatar trained on the fit against one on the truth
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_int(self, "seed", 0)
-        for name in ("subjects", "size", "frames"):
-            check_int(self, name)
-        check_int(self, "iterations", optional=True)
-        check_int(self, "avatar_iterations", 0)
-        check_choice(self, "style", ("plain", "realistic"))
-        check_choice(self, "focal", ("prior", "truth"))
 
 
 def bench_fit(config: FitBenchConfig) -> dict:

@@ -10,28 +10,14 @@ at most 4 GB for 1,500 frames at 1024 x 1024.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from trioman.bench.common import check_int, check_path
+from trioman.bench.config import FramesBenchConfig
 from trioman.runtime.formats import save_subject
 from trioman.runtime.skeleton import Skeleton, SkinnedMesh
 from trioman.toolkit.stages import StageLog, mib, peak_rss_bytes
-
-
-@dataclass(frozen=True)
-class FramesBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: the generated subject (reused when there) and the run go in it
-    frames: int = 1500  # frames of the generated subject
-    size: int = 1024  # its image side, pixels
-    iterations: int = 20  # training iterations
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        for name in ("frames", "size", "iterations"):
-            check_int(self, name)
 
 
 def write_subject(out: Path, frames: int, size: int, seed: int = 0) -> None:

@@ -6,29 +6,14 @@ height. The report lists both points' errors and the table ``keypoints.py`` take
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from trioman.bench.common import check_int, check_path, machine
+from trioman.bench.common import machine
+from trioman.bench.config import LandmarksBenchConfig
 
 REACH = 0.12  # m: candidates within this of the current point, in the rest pose
-
-
-@dataclass(frozen=True)
-class LandmarksBenchConfig:
-    out: str | Path = "out/bench"  # the report folder; the subjects go in out/landmarks_work
-    seed: int = 2000  # calibration subjects' first seed (apart from the ablation's and bench fit's 1004-1006)
-    subjects: int = 4
-    size: int = 540
-    frames: int = 60
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_int(self, "seed", 0)
-        for name in ("subjects", "size", "frames"):
-            check_int(self, name)
 
 
 def bench_landmarks(config: LandmarksBenchConfig) -> dict:

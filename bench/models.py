@@ -5,17 +5,16 @@ held-out subjects' test frames (novel poses and views), as in the paper (``bench
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from trioman.bench.common import batched, best_time, check_choice, check_int, check_names, check_path, mean_metrics
+from trioman.bench.common import batched, best_time, mean_metrics
+from trioman.bench.config import ModelsBenchConfig
 from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
 from trioman.toolkit.examiner import auroc, pair_auroc
 from trioman.toolkit.model_training import (
-    REFINER_SIZES,
     FitConfig,
     examiner_batch,
     fit_examiner,
@@ -24,38 +23,7 @@ from trioman.toolkit.model_training import (
     refiner_batch,
 )
 from trioman.toolkit.refiner import CONDITIONS, refiner_inputs
-from trioman.toolkit.refiner.backbones import registered_backbones
 from trioman.toolkit.triplets import TripletSet
-
-
-@dataclass(frozen=True)
-class ModelsBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: the runs go in out/runs, the score figure beside the report
-    corpus: str | Path = "out/corpus"  # the corpus folder, built when absent
-    subjects: int = 10  # training subjects when building the corpus
-    heldout: int = 2  # held-out subjects when building the corpus
-    size: int = 128  # the corpus's image side, pixels, when building it
-    refiner_steps: int = 1000  # Refiner training steps per condition
-    refiner_size: str = "compact"  # the Refiner's widths (toolkit.model_training.REFINER_SIZES)
-    backbone: str = "scratch"  # the Refiner's backbone ("scratch" or "sd-turbo")
-    pretrained: str | Path | None = None  # a local SD-Turbo folder for backbone "sd-turbo" (never downloaded)
-    crop: int = 64  # Refiner training crop side, pixels
-    examiner: str = "examiner_nano"  # the Examiner's config name
-    examiner_steps: int = 1000  # Examiner training steps
-    batch: int = 4  # training batch size of both models
-    baseline_frames: tuple[str, ...] = ("all",)  # corpus variants of the coarse frames; each but "all" adds a tex+geo Refiner
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_path(self, "corpus")
-        check_path(self, "pretrained", optional=True)
-        for name in ("subjects", "heldout", "size", "refiner_steps", "crop", "examiner_steps", "batch"):
-            check_int(self, name)
-        check_choice(self, "refiner_size", REFINER_SIZES)
-        check_choice(self, "backbone", registered_backbones())
-        if not isinstance(self.examiner, str) or not self.examiner:
-            raise ValueError(f"examiner: expected an Examiner config name, got {self.examiner!r}")
-        check_names(self, "baseline_frames", empty=True)
 
 
 def bench_models(config: ModelsBenchConfig) -> dict:

@@ -8,28 +8,17 @@ from __future__ import annotations
 
 import time
 import tracemalloc
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from trioman.bench.common import best_time, check_int, check_path, machine, peak_rss_mib
+from trioman.bench.common import best_time, machine, peak_rss_mib
+from trioman.bench.config import RenderBenchConfig
 from trioman.runtime.render import rasterize as rasterize_numpy
 from trioman.runtime.render.reference import rasterize_reference
 from trioman.toolkit.render import rasterize as rasterize_torch
 
 KEYS = ("means", "quats", "scales", "opacities", "colors")
-
-
-@dataclass(frozen=True)
-class RenderBenchConfig:
-    size: int = 256  # image side, pixels: the renderers run at it and at twice it, the oracle at half (at most 128)
-    avatar_run: str | Path | None = None  # a trained run folder (None: the untrained default avatar)
-
-    def __post_init__(self) -> None:
-        check_int(self, "size", 2)
-        check_path(self, "avatar_run", optional=True)
 
 
 def avatar_scene(avatar_run: str | None = None, avatar_cfg=None) -> dict:

@@ -15,33 +15,14 @@ import os
 import socket
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-from trioman.bench.common import check_int, machine
+from trioman.bench.common import machine
+from trioman.bench.config import ScaleBenchConfig
 
 WORLDS = (1, 2)
 PREDICT_GPUS = 8
 WARMUP = 2  # untimed steps before every timed series
-
-
-@dataclass(frozen=True)
-class ScaleBenchConfig:
-    size: int = 64  # the random triplets' image side, pixels
-    batch: int = 4  # samples per process and step
-    iterations: int = 20  # timed steps per series
-    seed: int = 0  # the Refiner's initial weights and the triplets
-
-    def __post_init__(self) -> None:
-        from trioman.toolkit.model_training import REFINER_SIZES
-        from trioman.toolkit.refiner import RefinerConfig
-
-        for name in ("size", "batch", "iterations"):
-            check_int(self, name)
-        check_int(self, "seed", 0)
-        step = RefinerConfig(conditions="tex+geo", **REFINER_SIZES["compact"]).total_downsample
-        if self.size % step:
-            raise ValueError(f"size: must be a multiple of {step} (the compact Refiner's downsampling), got {self.size}")
 
 
 def _ring_volume(n: int) -> float:

@@ -6,31 +6,19 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from trioman.bench.common import check_int, check_path, machine
+from trioman.bench.common import machine
+from trioman.bench.config import StabilityBenchConfig
 
 KEYS = ("means", "quats", "scales", "opacities", "colors", "viewmat", "K")
 ANGLES = {"pi - 1e-3": math.pi - 1e-3, "pi - 1e-6": math.pi - 1e-6, "pi": math.pi, "pi + 1e-6": math.pi + 1e-6,
           "1e-4": 1e-4, "1e-8": 1e-8, "1e-12": 1e-12, "0": 0.0}
 MODEL_SIZE = 32  # px, the tiny Refiner's and Examiner's input side
 LR_FACTORS = (1, 100)  # the training cases' learning rates, times each loop's default
-
-
-@dataclass(frozen=True)
-class StabilityBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: the training cases' runs and the exported models go in it
-    seeds: int = 2  # extreme scenes drawn
-    iterations: int = 30  # training steps of each training case
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_int(self, "seeds")
-        check_int(self, "iterations")
 
 
 def _row(group: str, case: str, method: str, error: float, finite: bool | None, note: str = "", **extra: Any) -> dict:

@@ -2,23 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
-from trioman.bench.common import check_int, machine, peak_rss_mib
-
-
-@dataclass(frozen=True)
-class SynthBenchConfig:
-    seed: int = 0  # the subject's seed
-    size: int = 256  # image side, pixels (the long side with ``aspect``)
-    frames: int = 300  # subject frames
-    style: str = "plain"  # the synth style (toolkit/synth/subject.py)
-    aspect: float = 1.0  # width / height
-
-    def __post_init__(self) -> None:
-        check_int(self, "seed", 0)
-        check_int(self, "size")
-        check_int(self, "frames")
+from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.config import SynthBenchConfig
 
 
 TARGET_S = {"plain": 120, "realistic": 180}  # end-to-end wall time of 300 frames (plain at 256 px, realistic at 540p)

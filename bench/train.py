@@ -5,46 +5,17 @@ and where the time of one training step goes (``bench_train``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from trioman.bench.common import check_int, check_names, check_path, machine, peak_rss_mib
+from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.config import TrainBenchConfig
 
 HOLE_SIZE = 512  # animate's default output side
 HOLE_ALPHA = 0.5
 STAGES = ("triplane + MLPs", "posing (LBS)", "projection", "tile binning", "rasterizer forward", "loss",
           "rasterizer backward", "backward", "optimizer")  # the marks of one step (runtime.render.timing)
-
-
-@dataclass(frozen=True)
-class TrainBenchConfig:
-    out: str | Path = "out/bench"  # the report folder: the subject, the runs and the figures go in it
-    seed: int = 0  # the subject's seed
-    size: int = 256  # the subject's image side, pixels (the rasterizer and the step profile also run at half)
-    frames: int = 120  # subject frames
-    presets: tuple[str, ...] = ("quick", "full")  # the presets trained, each from scratch
-    iterations: int | None = None  # every preset's iterations (None: the preset's)
-    full_iterations: int | None = None  # the full preset's iterations when ``iterations`` is None (None: the preset's)
-    eval_every: int = 250  # iterations between the evaluations of both splits (the runs' checkpoint interval)
-    training: bool = True  # False: no preset trains; only the rasterizer timings and the step profile
-    repeats: int = 5  # timed steps of the step profile
-    threads: int | None = None  # the step profile's torch threads (None: 1 and 2)
-
-    def __post_init__(self) -> None:
-        from trioman.toolkit.train.config import PRESETS
-
-        check_path(self, "out")
-        check_int(self, "seed", 0)
-        check_int(self, "size", 2)
-        for name in ("frames", "eval_every", "repeats"):
-            check_int(self, name)
-        for name in ("iterations", "full_iterations", "threads"):
-            check_int(self, name, optional=True)
-        check_names(self, "presets", PRESETS)
-        if not isinstance(self.training, bool):
-            raise ValueError(f"training: must be a bool, got {self.training!r}")
 
 
 def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], threads: tuple[int, ...],

@@ -110,6 +110,14 @@ def test_tuple_fields_take_their_items_after_the_flag_once_per_flag_or_split():
         p.parse_args(["--frame", "x", "--name", "n"])  # each item parsed as the item type
 
 
+def test_a_command_line_repeats_the_flag_of_each_item_of_a_repeated_option():
+    from trioman.commands import command_line
+
+    args = _parser(Lists).parse_args(["--frame", "3", "--frame", "1", "--files", "x.npz", "y.npz", "--name", "n"])
+    assert command_line("toy", lambda p: add_options(p, Lists), vars(args)) == \
+        "trioman toy --name n --frame 3 --frame 1 --files x.npz y.npz"
+
+
 def test_a_field_without_a_default_is_a_required_option():
     assert {a.dest for a in _parser(Lists)._actions if a.required} == {"name"}
     with pytest.raises(SystemExit):
@@ -128,7 +136,7 @@ def test_a_tuple_fields_checks_hold_for_each_item(kw, message):
 
 
 def _specced(module) -> set[str]:
-    """The flags declared on the fields of a converted command's configs (its module's ``_configs()``)."""
+    """The flags declared on the fields of a command's configs (its module's ``_configs()``)."""
     return {flag_of(f, spec) for cls in module._configs() for f, spec in declared(cls)}
 
 
@@ -148,11 +156,7 @@ def _flags_of(module, target: str | None = None) -> dict[str, argparse.Action]:
     return found
 
 
-# Flags not yet declared on a config's field, by command: each issue that converts a command empties its entry.
-# (issue 44: every flag of every command has a spec; all but bench are converted, and bench ablation's
-# augmentation options are converted.)
-NOT_YET_DECLARED = {"bench"}
-# Flags of a converted command that are not settings of a config: where the run goes and how it is shown.
+# Flags of a command that are not settings of a config: where the run goes and how it is shown.
 COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "synth": {"--out", "--video", "--overwrite", "--quiet"}, "demo": {"--quiet"},
                "fit": {"--out", "--overwrite", "--quiet"}, "synth-corpus": {"--out", "--quiet", "--shard", "--merge"},
@@ -162,20 +166,19 @@ COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "augment": {"--avatar", "--refiner", "--examiner", "--out", "--resume", "--overwrite", "--quiet", "--shard",
                            "--merge"},
                "export": {"--out", "--checkpoint", "--overwrite", "--refiner", "--examiner"},
-               "import": {"--subject", "--out", "--body-model-dir", "--masks", "--overwrite"}}
+               "import": {"--subject", "--out", "--body-model-dir", "--masks", "--overwrite"}, "bench": {"--out"}}
 
 
-def test_every_flag_of_a_converted_command_has_a_spec():
-    converted = [c for c in COMMANDS if c.name not in NOT_YET_DECLARED]
-    assert converted
-    for cmd in converted:
+def test_every_flag_of_a_command_has_a_spec():
+    for cmd in COMMANDS:
         module = importlib.import_module(cmd.module)
         missing = set(_flags_of(module)) - _specced(module) - COMMAND_OWN.get(cmd.name, set())
         assert not missing, (cmd.name, sorted(missing))
 
 
 def test_library_and_command_defaults_are_one_value():
-    from trioman.commands.bench import ABLATION_AUGMENT
+    from trioman.bench.ablation_config import SCHEDULE, AblationPlan
+    from trioman.commands.bench import _target_configs
     from trioman.export.config import AvatarExportOptions, OnnxExportOptions
     from trioman.toolkit.train.augment_config import AugmentConfig
     from trioman.toolkit.evaluate_config import EvalOptions
@@ -189,7 +192,9 @@ def test_library_and_command_defaults_are_one_value():
     from trioman.toolkit.triplets_config import TripletsOptions
 
     for cmd_name, specs in (("train", declared(TrainConfig) + declared(AugmentConfig)),
-                            ("bench", [(f, s) for f, s in declared(AugmentConfig) if f.name in ABLATION_AUGMENT]),
+                            *((f"bench {target}", declared(cls)) for target, cls in _target_configs().items()),
+                            ("bench ablation", declared(AblationPlan) + [(f, s) for f, s in declared(AugmentConfig)
+                                                                        if f.name in SCHEDULE]),
                             ("train-refiner", declared(TrainRefinerOptions)), ("train-examiner", declared(TrainExaminerOptions)),
                             ("eval", declared(EvalOptions)), ("inspect", declared(InspectOptions)),
                             ("triplets", declared(TripletsOptions)), ("animate", declared(AnimateOptions)),
@@ -269,15 +274,18 @@ def _shown(value, sep: str | None = None) -> str:
 
 
 def test_the_ablations_schedule_is_the_trainings_default():
-    pytest.importorskip("torch")
-    from trioman.bench.ablation import AblationBenchConfig, AblationPlan
+    from trioman.bench.ablation_config import AblationBenchConfig, AblationPlan
+    from trioman.cli import build_parser
+    from trioman.commands.bench import target_config
     from trioman.toolkit.train.augment_config import AugmentConfig
 
-    plan, bench, aug = AblationPlan(), AblationBenchConfig(), AugmentConfig()
-    assert (plan.start, plan.refresh, plan.pool, plan.share, plan.weight, plan.mask) == \
-        (aug.start, aug.refresh, aug.pool, aug.share, aug.weight, aug.mask)
-    assert (bench.augment_start, bench.augment_refresh, bench.augment_pool, bench.augment_mask) == \
-        (aug.start, aug.refresh, aug.pool, aug.mask)
+    plan = AblationPlan()
+    assert plan.schedule == AugmentConfig() and AblationBenchConfig().plan == plan
+    assert target_config(build_parser().parse_args(["bench", "ablation"])).plan == plan
+    aug = AugmentConfig()
+    assert {k: plan.record()[k] for k in ("start", "refresh", "pool", "share", "weight", "mask")} == \
+        {"start": aug.start, "refresh": aug.refresh, "pool": aug.pool, "share": aug.share, "weight": aug.weight,
+         "mask": aug.mask}
 
 
 def test_keep_carried_is_on_wherever_there_is_a_refiner():
@@ -293,10 +301,11 @@ def test_the_model_training_functions_default_to_their_commands_options():
     import inspect
 
     pytest.importorskip("torch")
-    from trioman.toolkit.model_configs import REFINER_SIZE_NAMES, TrainExaminerOptions, TrainRefinerOptions
+    from trioman.toolkit.model_configs import BACKBONES, REFINER_SIZE_NAMES, TrainExaminerOptions, TrainRefinerOptions
     from trioman.toolkit.model_training import REFINER_SIZES, FitConfig, examiner_fit, fit_examiner, fit_refiner, refiner_fit
+    from trioman.toolkit.refiner.backbones import registered_backbones
 
-    assert tuple(REFINER_SIZES) == REFINER_SIZE_NAMES
+    assert tuple(REFINER_SIZES) == REFINER_SIZE_NAMES and tuple(sorted(BACKBONES)) == registered_backbones()
     refiner, examiner = TrainRefinerOptions(), TrainExaminerOptions()
     names = {"conditions": "conditions", "refiner_size": "size", "backbone": "backbone", "device": "device",
              "mixed_precision": "mixed_precision", "gradient_checkpointing": "gradient_checkpointing", "name": "model",

@@ -14,6 +14,7 @@ from trioman.runtime.options import check_options, integer, option
 # (runtime/aligned.py) and refine it: views (aligned, coarse[, normal]) (docs/augmentation.md, "Refiner conditions").
 CONDITIONS = ("none", "tex", "tex+geo", "warp", "warp+geo")
 REFINER_SIZE_NAMES = ("compact", "default")  # model_training.REFINER_SIZES
+BACKBONES = ("scratch", "sd-turbo")  # refiner.backbones.registered_backbones()
 CORPUS_VARIANTS = ("all", "subset")
 
 
@@ -35,7 +36,7 @@ class TrainRefinerOptions:
     size: str = option("compact", choices=REFINER_SIZE_NAMES, help="Refiner widths")
     baseline_frames: str = option("all", choices=CORPUS_VARIANTS, help="corpus variant")
     seed: int = option(0, check=integer(0), help="the seed of the weights and the samples")
-    backbone: str = option("scratch", choices=("scratch", "sd-turbo"),
+    backbone: str = option("scratch", choices=BACKBONES,
                            help="sd-turbo: the paper's SD-Turbo backbone from --pretrained DIR (needs trioman[diffusion])")
     pretrained: str | None = option(None, metavar="DIR",
                                     help="local SD-Turbo folder in diffusers layout (never downloaded)")

@@ -10,7 +10,8 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.ablation import LABELS, LEVERS, VARIANTS, AblationPlan, _frame_target, ablation_markdown, summarise  # noqa: E402
+from trioman.bench.ablation import LABELS, _frame_target, ablation_markdown, summarise  # noqa: E402
+from trioman.bench.ablation_config import LEVERS, VARIANTS, AblationPlan  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
 
@@ -125,7 +126,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
 def test_a_row_alone_trains_only_the_models_it_needs(corpus, tmp_path):
     """--variants: the rows' Refiners train, no other; the Examiner only for GRE; the condition check covers the
     Refiners there."""
-    from trioman.bench.ablation import VARIANTS, needed_models
+    from trioman.bench.ablation import needed_models
 
     assert needed_models(["GR_tex"]) == ["refiner_tex"]
     assert needed_models(["GRE", "baseline"]) == ["refiner_warp+geo", "examiner"]
@@ -202,7 +203,7 @@ def test_summary_verdicts_follow_the_numbers():
     v = summarise(res)["verdict"]
     assert v["seen_share_of_ceiling"] == pytest.approx(0.8) and v["full_share_of_seen_ceiling"] == pytest.approx(1.3 / 1.6)
     assert "of that seen-surface ceiling's gain" in ablation_markdown(
-        {"plan": {**AblationPlan().__dict__, "augmented_iterations": 10}, "subjects": ["a"], "corpus": "c", "lpips": False,
+        {"plan": {**AblationPlan().record(), "augmented_iterations": 10}, "subjects": ["a"], "corpus": "c", "lpips": False,
          "summary": summarise(res), "results": {}, "condition_check": {}, "pseudo_gt_truth": {}, "models": {}, "wall_seconds": 1.0})
     res["a"]["GR_warp+geo"] = runs(21.2)
     assert summarise(res)["verdict"]["warp_order_holds"]

@@ -1,8 +1,7 @@
-"""``trioman bench``: each target's library function takes a typed config built from the parsed options
+"""``trioman bench``: each target's library function takes a typed config built from the options of its sub-parser
 (trioman/commands/bench.py), so trioman.bench knows nothing of the command line."""
 
 import dataclasses
-import importlib
 from pathlib import Path
 
 import pytest
@@ -10,22 +9,19 @@ import pytest
 pytest.importorskip("torch")
 
 from trioman.cli import build_parser, main  # noqa: E402
-from trioman.commands.bench import TARGETS, bench_config  # noqa: E402
+from trioman.toolkit.train.augment_config import AugmentConfig  # noqa: E402
+from trioman.commands.bench import TARGETS, _target_configs, target_config  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIGURED = {t: (m, c) for t, (m, _, _, c) in TARGETS.items() if c is not None}
 
 
 def config_of(argv: list[str]):
-    args = build_parser().parse_args(["bench", *argv])
-    module, cls = CONFIGURED[args.target]
-    return bench_config(getattr(importlib.import_module(module), cls), args)
+    return target_config(build_parser().parse_args(["bench", *argv]))
 
 
-@pytest.mark.parametrize("target", sorted(CONFIGURED))
+@pytest.mark.parametrize("target", sorted(TARGETS))
 def test_the_command_lines_defaults_are_the_configs(target):
-    module, cls = CONFIGURED[target]
-    cls = getattr(importlib.import_module(module), cls)
+    cls = _target_configs()[target]
     assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen
     assert config_of([target]) == cls()
 
@@ -37,12 +33,23 @@ def test_options_become_typed_fields():
     assert (models.baseline_frames, models.backbone, models.heldout, models.size) == (("all", "subset"), "sd-turbo", 2, 128)
     assert config_of(["stability", "--seeds", "1", "--iterations", "3"]).iterations == 3
     assert config_of(["deploy", "--frames", "4"]).frames == 4 and config_of(["deploy"]).frames is None
+    ablation = config_of(["ablation", "--augment-pool", "8", "--iterations", "30", "--variants", "G,GRE", "--no-training"])
+    assert (ablation.plan.schedule.pool, ablation.plan.iterations, ablation.variants, ablation.training) == \
+        (8, 30, ("G", "GRE"), False)
+    assert ablation.plan.schedule == dataclasses.replace(AugmentConfig(), pool=8)
+
+
+def test_an_option_belongs_to_its_targets():
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["bench", "synth", "--corpus", "c"])
 
 
 @pytest.mark.parametrize("argv, problem", [
     (["frames", "--frames", "0"], "frames: must be an integer >= 1, got 0"),
     (["scale", "--size", "20"], "size: must be a multiple of 16"),
-    (["train", "--presets", "quick,fast"], "presets: unknown 'fast'"),
+    (["train", "--presets", "quick,fast"], "--presets: expected one of quick, full, got 'fast'"),
+    (["ablation", "--reach", "11"], "--reach: the Generator's camera sigmas"),
+    (["ablation", "--augment-start", "1"], "--augment-start: must lie in [0, 1), got 1.0"),
     (["synth", "--seed", "-1"], "seed: must be an integer >= 0, got -1"),
     (["stability", "--iterations", "0"], "iterations: must be an integer >= 1, got 0"),
 ])
@@ -55,7 +62,7 @@ def test_a_bad_value_is_one_line_naming_the_field_before_any_work(argv, problem,
 
 
 def test_the_library_takes_no_parsed_options():
-    for module, _ in CONFIGURED.values():
+    for module, *_ in TARGETS.values():
         path = ROOT / "bench" / f"{module.rsplit('.', 1)[1]}.py"
         assert "argparse" not in path.read_text(), path
     assert "argparse" not in (ROOT / "bench" / "demo.py").read_text()

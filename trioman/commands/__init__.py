@@ -5,7 +5,8 @@ call into the library only. Standard-library imports only at module level (triom
 
 def command_line(name: str, add_arguments, values: dict) -> str:
     """The ``trioman NAME ...`` command that gives ``values`` ({dest: value}) to a subcommand's options:
-    positionals and required options always, other options only where they differ from their default."""
+    positionals and required options always, other options only where they differ from their default (a repeated
+    option once per item)."""
     import argparse
     import shlex
 
@@ -19,8 +20,11 @@ def command_line(name: str, add_arguments, values: dict) -> str:
         elif isinstance(action, argparse._StoreTrueAction):
             words += [action.option_strings[-1]] if value else []
         elif action.required or value != action.default:
-            if isinstance(value, list):
-                words += [action.option_strings[-1], *map(str, value)]
+            flag = action.option_strings[-1]
+            if isinstance(action, argparse._AppendAction):  # one item per flag
+                words += [word for item in value for word in (flag, str(item))]
+            elif isinstance(value, (list, tuple)):
+                words += [flag, *map(str, value)]
             elif value is not None:
-                words += [action.option_strings[-1], str(value)]
+                words += [flag, str(value)]
     return shlex.join(words)

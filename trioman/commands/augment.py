@@ -9,8 +9,8 @@ docs/formats.md "Augmented frames". Train on the result with ``trioman train SUB
 many sharing DIR); ``--merge`` with the same inputs then checks every shard and assembles DIR
 (docs/scaling.md).
 
-The library's errors name its parameters (``per_frame: ...``); ``run`` shows them with this command's flags
-(``--per-frame: ...``, docs/design.md, "Conventions").
+The library's errors name its parameters (``per_frame: ...``); trioman/cli.py shows them with this command's flags
+(``flags()``: ``--per-frame: ...``, docs/design.md, "Errors name what the caller gave").
 
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
@@ -18,7 +18,6 @@ Module contract (trioman/cli.py): standard-library imports only at module level.
 from __future__ import annotations
 
 import argparse
-import re
 
 
 def _configs():
@@ -68,14 +67,9 @@ def run(args: argparse.Namespace) -> int:
 
     shard = None if args.shard is None else Shard.parse(args.shard)
     (options,) = _configs()
-    try:
-        cfg = options(**given(options, args))
-        r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, **asdict(cfg), resume=args.resume,
-                    overwrite=args.overwrite, progress=not args.quiet, shard=shard, merge=args.merge)
-    except (ValueError, OSError) as err:  # our own messages (an OSError with an errno is the system's): flags
-        if len(err.args) == 1 and isinstance(err.args[0], str) and not getattr(err, "errno", None):
-            err.args = (flag_message(err.args[0]),)
-        raise
+    cfg = options(**given(options, args))
+    r = augment(args.subject, args.avatar, args.refiner, args.out, args.examiner, **asdict(cfg), resume=args.resume,
+                overwrite=args.overwrite, progress=not args.quiet, shard=shard, merge=args.merge)
     if shard is not None:
         print(f"augment: shard {shard} done ({len(r['items'])} source frames in {Path(args.out) / 'shards' / shard.name}); "
               f"assemble with --merge when every shard is done")
@@ -102,13 +96,3 @@ def run(args: argparse.Namespace) -> int:
           + (f", score histogram {out / s['histogram']}" if s["histogram"] else ""))
     return 0
 
-
-def flag_message(message: str) -> str:
-    """A library error as this command's user reads it: the leading parameter name(s) (``name:``, ``a and b:``) and
-    the backquoted ones (`` `name` ``) become flags (``flags()``); the rest stays as it is."""
-    shown = flags()
-    head, sep, rest = message.partition(": ")
-    names = head.split(" and ")
-    if sep and all(n in shown for n in names):
-        head = " and ".join(shown[n] for n in names)
-    return re.sub(r"`(\w+)`", lambda m: shown.get(m[1], m[0]), head + sep + rest)

@@ -2,9 +2,9 @@
 
 A library's error starts with the name of its parameter (``size: must lie in ...``; ``motion walk: ...`` with
 the value; ``resume and overwrite: ...``) and puts other parameters it mentions in backquotes (``give
-`refiner` too``). A command module declares ``FLAGS``, its parameters -> its flags as typed, and trioman/cli.py
-shows every error of ours through :func:`flag_message` with them; a command whose options are declared on its
-configs' fields (trioman/options.py) has ``flags()`` instead, made from them. Standard-library imports only.
+`refiner` too``). A command module's ``flags()`` maps them to its flags as typed (made from the options declared on
+its configs' fields, trioman/options.py, and its own flags), and trioman/cli.py shows every error of ours through
+:func:`flag_message` with them. Standard-library imports only.
 """
 
 from __future__ import annotations
@@ -27,11 +27,8 @@ def flag_message(message: str, flags: Mapping[str, str]) -> str:
 
 
 def command_flags(module) -> Mapping[str, str]:
-    """The flags a command's errors are shown with: its module's ``FLAGS``, or its ``flags()``."""
-    declared = getattr(module, "FLAGS", None)
-    if declared is None and hasattr(module, "flags"):
-        declared = module.flags()
-    return declared or {}
+    """The flags a command's errors are shown with: its module's ``flags()`` (none without one)."""
+    return module.flags() if hasattr(module, "flags") else {}
 
 
 def shown_message(err: BaseException, message: str, flags: Mapping[str, str]) -> str:

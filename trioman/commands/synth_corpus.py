@@ -4,7 +4,7 @@ Refiner and Examiner (toolkit/corpus.py). Resumes where an interrupted build sto
 ``--shard I/N`` builds only the subjects of shard I of N (N jobs, on one machine or many sharing DIR);
 ``--merge`` with the same settings then checks every shard and writes corpus.json (docs/scaling.md).
 The library's errors name its parameters (``shard: ...``, ``merge: ...``); trioman/cli.py shows them with
-``FLAGS`` (trioman/commands/flags.py)."""
+``flags()`` (trioman/commands/flags.py)."""
 
 from __future__ import annotations
 
