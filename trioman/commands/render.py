@@ -47,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"--out: the folder {out.parent} does not exist")
+    source = pose_source(args.pose)
     try:  # the image never replaces or enters what the command reads: the avatar, the subject or motion of --pose
-        check_not_input(out, [args.avatar, pose_source(args.pose)])
+        check_not_input(out, [args.avatar, source])
     except ValueError as err:
         raise ValueError(f"--out {err}") from None
     avatar = load_avatar(args.avatar)
