@@ -27,7 +27,8 @@ def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:
     """The report of ``trioman bench augment-cost``."""
     import shutil
 
-    from trioman.bench.common import machine, peak_rss_mib
+    from trioman.bench.common import machine
+    from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.augment_config import ALONE, AugmentConfig
     from trioman.toolkit.train.config import preset
@@ -59,7 +60,7 @@ def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:
               f"({ratio:.2f}x)", flush=True)
     return {"target": "augment-cost", "machine": machine(), "frames": config.frames, "iterations": config.iterations,
             "augment": {k: v for k, v in dataclasses.asdict(augment).items() if k not in ("pose_sigma", "camera")},
-            "rows": rows, "target_ratio": TARGET_RATIO, "peak_rss_mib": round(peak_rss_mib(), 1)}
+            "rows": rows, "target_ratio": TARGET_RATIO, "peak_rss_mib": round(mib(lifetime_peak_rss_bytes()), 1)}
 
 
 def augment_cost_markdown(r: dict) -> str:

@@ -1,6 +1,7 @@
-"""What every benchmark shares: the machine line, peak memory, timing, batched model calls, the report
+"""What every benchmark shares: the machine line, timing, batched model calls, the report
 files (``TARGET.json`` and ``TARGET.md`` in the report folder) and the checks of the targets' configs. Timings
-are wall clock on the machine named in the report; nothing in trioman.bench is a timed test."""
+are wall clock on the machine named in the report; nothing in trioman.bench is a timed test. Stage timing and
+peak memory: trioman.runtime.stages."""
 
 from __future__ import annotations
 
@@ -33,15 +34,6 @@ def machine() -> str:
     import platform
 
     return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
-
-
-def peak_rss_mib() -> float:
-    """Peak resident memory of this process so far, MiB (ru_maxrss)."""
-    import resource
-    import sys
-
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss / (1024 * 1024) if sys.platform == "darwin" else rss / 1024
 
 
 def best_time(fn, repeats: int) -> float:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 from trioman.runtime.options import check_options, integer, number, option
 
 if TYPE_CHECKING:
-    from trioman.toolkit.stages import StageLog
+    from trioman.runtime.stages import StageLog
     from trioman.toolkit.train.config import TrainConfig
 
 
@@ -49,7 +49,7 @@ def say(line: str) -> None:
 def run_demo(cfg: DemoConfig) -> None:
     """The whole demo into ``cfg.out``, one line per stage, then the summary lines."""
     from trioman.toolkit.lpips import load_lpips_or_say_why
-    from trioman.toolkit.stages import StageLog, mib
+    from trioman.runtime.stages import StageLog, mib
 
     out = Path(cfg.out)
     progress = cfg.progress

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.common import machine
 from trioman.bench.config import FitBenchConfig
+from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
 
 TARGETS = {"pa_mpjpe_mm": 40.0, "seconds_per_300_frames": 300.0, "peak_rss_mib": 3072.0}
 
@@ -22,7 +23,6 @@ def bench_fit(config: FitBenchConfig) -> dict:
     from trioman.toolkit.fit.evaluate import compare
     from trioman.toolkit.fit.fitter import FitConfig
     from trioman.toolkit.fit.run import FitRunConfig, fit_video
-    from trioman.toolkit.stages import peak_rss_bytes
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 
     work = Path(config.out) / "fit_work"
@@ -55,7 +55,7 @@ def bench_fit(config: FitBenchConfig) -> dict:
                         if config.avatar_iterations else {})})
     return {"target": "fit", "machine": machine(), "config": {k: str(v) if isinstance(v, Path) else v
                                                              for k, v in dataclasses.asdict(config).items()},
-            "rows": rows, "peak_rss_mib": round(max(peak_rss_bytes() / 2 ** 20, peak_rss_mib()), 1), "targets": TARGETS}
+            "rows": rows, "peak_rss_mib": round(mib(lifetime_peak_rss_bytes()), 1), "targets": TARGETS}
 
 
 def _cost_of_fitting(fitted, truth, stem: Path, iterations: int) -> dict:

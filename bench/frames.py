@@ -17,7 +17,7 @@ import numpy as np
 from trioman.bench.config import FramesBenchConfig
 from trioman.runtime.formats import save_subject
 from trioman.runtime.skeleton import Skeleton, SkinnedMesh
-from trioman.toolkit.stages import StageLog, mib, peak_rss_bytes
+from trioman.runtime.stages import StageLog, mib, peak_rss_bytes
 
 
 def write_subject(out: Path, frames: int, size: int, seed: int = 0) -> None:

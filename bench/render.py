@@ -12,8 +12,9 @@ import tracemalloc
 import numpy as np
 import torch
 
-from trioman.bench.common import best_time, machine, peak_rss_mib
+from trioman.bench.common import best_time, machine
 from trioman.bench.config import RenderBenchConfig
+from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
 from trioman.runtime.render import rasterize as rasterize_numpy
 from trioman.runtime.render.reference import rasterize_reference
 from trioman.toolkit.render import rasterize as rasterize_torch
@@ -114,10 +115,10 @@ def bench_renderers(scene: dict, sizes=(256, 512), repeats: int = 7, oracle_size
 
 
 def stage_profile(scenes: dict[str, dict], sizes: tuple[int, ...], repeats: int = 3) -> list[dict]:
-    """Milliseconds per stage of the numpy renderer (the marks of runtime.render.timing), the mean of ``repeats``
+    """Milliseconds per stage of the numpy renderer (the marks of runtime.stages), the mean of ``repeats``
     calls after one warm-up, per scene and size. -> rows: scene, gaussians, size, stages {name: ms}, total_ms
     (the call's wall time; "checks" is the input checks and the rest outside the marks), fps."""
-    from trioman.runtime.render.timing import record_stages
+    from trioman.runtime.stages import record_stages
 
     bg = np.ones(3, dtype=np.float32)
     rows = []
@@ -148,7 +149,7 @@ def bench_render(config: RenderBenchConfig) -> dict:
     report.update(bench_renderers(scene, sizes, oracle_size=min(128, config.size // 2)))
     scenes = {"default": scene, **{name: avatar_scene(None, preset(name).avatar) for name in ("quick", "full")}}
     report["stages"] = stage_profile(scenes, sizes)
-    report["peak_rss_mib"] = round(peak_rss_mib(), 1)
+    report["peak_rss_mib"] = round(mib(lifetime_peak_rss_bytes()), 1)
     return report
 
 

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 
-from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.common import machine
 from trioman.bench.config import SynthBenchConfig
+from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
 
 
 TARGET_S = {"plain": 120, "realistic": 180}  # end-to-end wall time of 300 frames (plain at 256 px, realistic at 540p)
@@ -24,7 +25,7 @@ def bench_synth(config: SynthBenchConfig) -> dict:
         t0 = time.perf_counter()
         subject = synthesize_subject(cfg, work / "subject", progress=True, video=work / "video.mp4" if cfg.style != "plain" else None)
         total = time.perf_counter() - t0
-        peak = peak_rss_mib()
+        peak = mib(lifetime_peak_rss_bytes())
         # Stage breakdown, measured again separately in this process (the end-to-end number above is the one that counts).
         t = time.perf_counter()
         mesh, _ = build_body(cfg)

@@ -9,13 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from trioman.bench.common import machine, peak_rss_mib
+from trioman.bench.common import machine
 from trioman.bench.config import TrainBenchConfig
+from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
 
 HOLE_SIZE = 512  # animate's default output side
 HOLE_ALPHA = 0.5
 STAGES = ("triplane + MLPs", "posing (LBS)", "projection", "tile binning", "rasterizer forward", "loss",
-          "rasterizer backward", "backward", "optimizer")  # the marks of one step (runtime.render.timing)
+          "rasterizer backward", "backward", "optimizer")  # the marks of one step (runtime.stages)
 
 
 def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], threads: tuple[int, ...],
@@ -27,7 +28,7 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
     import torch
 
     from trioman.runtime.formats import load_subject
-    from trioman.runtime.render.timing import record_stages
+    from trioman.runtime.stages import record_stages
     from trioman.toolkit.avatar.model import GaussianAvatar
     from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
     from trioman.toolkit.train.config import preset
@@ -239,7 +240,7 @@ def bench_train(config: TrainBenchConfig) -> dict:
     threads = (config.threads,) if config.threads else (1, 2)
     report["step_profile"] = profile_step(subject_dir, "quick", (config.size // 2, config.size), threads, config.repeats)
     plot_step_profile(report["step_profile"], out / "step_profile.png")
-    report["peak_rss_mib"] = round(peak_rss_mib(), 1)
+    report["peak_rss_mib"] = round(mib(lifetime_peak_rss_bytes()), 1)
     return report
 
 

@@ -18,7 +18,7 @@ from trioman.runtime.render.projection import (
     project,
 )
 from trioman.runtime.render.tiles import bin_gaussians
-from trioman.runtime.render.timing import stage
+from trioman.runtime.stages import stage
 
 DEFAULT_TILE = 4  # tile side in pixels (docs/design.md, "How the renderers compute it")
 DEFAULT_CHUNK_ELEMENTS = 1 << 16  # pixel x Gaussian entries per dense block (256 KiB per float32 array): blocks

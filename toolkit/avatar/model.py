@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.autograd.function import once_differentiable
 
-from trioman.runtime.render.timing import stage
+from trioman.runtime.stages import stage
 from trioman.runtime.skeleton import SkinnedMesh
 from trioman.toolkit.avatar.config import AvatarConfig
 from trioman.toolkit.avatar.mesh_ops import avatar_points, knn, level_interpolation

@@ -31,7 +31,7 @@ from trioman.runtime.preview import contact_sheet
 from trioman.runtime.video_input import VideoInfo, open_frames
 from trioman.toolkit.fit.config import FitConfig, FitRunConfig
 from trioman.toolkit.fit.fitter import DIST_MAP_SIDE, FitResult, Observations, fit_sequence
-from trioman.toolkit.stages import StageLog
+from trioman.runtime.stages import StageLog
 
 FIT_JSON, FIT_MD, OVERLAY_PNG, OVERLAY_MP4 = FIT_REPORT_FILES
 SEQUENCE = "video"

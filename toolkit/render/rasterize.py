@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.function import once_differentiable
 
-from trioman.runtime.render.timing import stage
+from trioman.runtime.stages import stage
 from trioman.toolkit.render import native
 from trioman.toolkit.render.projection import (
     ALPHA_THRESHOLD,

@@ -23,7 +23,7 @@ from trioman.runtime.outputs import (
     remove_temp_files,
     process_lock,
 )
-from trioman.runtime.render.timing import stage
+from trioman.runtime.stages import stage
 from trioman.toolkit.avatar.model import Gaussians, GaussianAvatar
 from trioman.toolkit.cpu import deterministic_kernels, flush_denormals
 from trioman.toolkit.loops.checkpoint import CHECKPOINTS, latest_checkpoint

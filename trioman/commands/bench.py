@@ -108,14 +108,15 @@ def target_config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     import importlib
 
-    from trioman.bench.common import machine, peak_rss_mib, write_report
+    from trioman.bench.common import machine, write_report
+    from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
 
     config = target_config(args)
     module, bench, markdown, _ = TARGETS[args.target]
     module = importlib.import_module(module)
     report = getattr(module, bench)(config)
     if args.target in ("models", "deploy", "ablation"):
-        report["machine"], report["peak_rss_mib"] = machine(), peak_rss_mib()
+        report["machine"], report["peak_rss_mib"] = machine(), mib(lifetime_peak_rss_bytes())
     md = getattr(module, markdown)(report)
     path = write_report(args.out, args.target, report, md)
     print(md)
