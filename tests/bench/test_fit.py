@@ -12,7 +12,7 @@ from trioman.bench.fit import FitBenchConfig, bench_fit, fit_markdown  # noqa: E
 skip_without_person_models()
 
 
-def test_bench_fit_compares_a_fit_with_its_truth(tmp_path):
+def test_bench_fit_compares_a_fit_with_its_truth(tmp_path, capsys):
     r = bench_fit(FitBenchConfig(out=tmp_path, subjects=1, size=256, frames=14, iterations=20, focal="truth", avatar_iterations=10))
     (row,) = r["rows"]
     assert row["frames_read"] == 10 and 2 <= row["frames_kept"] <= 10
@@ -21,7 +21,19 @@ def test_bench_fit_compares_a_fit_with_its_truth(tmp_path):
     assert "| s1004 |" in md and "PA-MPJPE <= 40.0 mm" in md and "cost of fitting" in md
     assert row["cost_of_fitting_db"] == round(row["psnr_true_poses"] - row["psnr_fitted_poses"], 2)
     assert row["cost_refined_db"] == round(row["psnr_true_poses"] - row["psnr_refined_poses"], 2)
-    assert "fitted, refined" in md
+    assert row["cost_of_the_frames_db"] == round(row["psnr_true_poses"] - row["psnr_true_poses_video_frames"], 2)
+    assert "fitted, refined" in md and "the video's frames and masks" in md
+    # the twin of the video's frames holds the fitted subject's own pixels at the truth's poses and cameras
+    from trioman.runtime.formats import load_subject
+
+    fitted, twin = load_subject(tmp_path / "fit_work" / "s1004_fit"), load_subject(tmp_path / "fit_work" / "s1004_true_poses_video_frames")
+    truth = load_subject(tmp_path / "fit_work" / "s1004")
+    assert list(twin.frame_names) == list(fitted.frame_names)
+    assert (twin.image(0) == fitted.image(0)).all() and (twin.mask(0) == fitted.mask(0)).all()
+    assert (twin.K[0] == truth.K[list(truth.frame_names).index(twin.frame_names[0])]).all()
+    # one line per step: a logged run is not silent
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("bench fit: s1004: ")]
+    assert len(lines) == 2 + 4 and "fitted (" in lines[1] and lines[-1].startswith("bench fit: s1004: avatar on the true poses and the video's frames")
 
 
 @pytest.mark.parametrize("kwargs, field", [(dict(focal="guess"), "focal"), (dict(subjects=0), "subjects"),
