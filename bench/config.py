@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from trioman.bench.common import check_names, check_path
 from trioman.runtime.options import check_options, integer, number, option
@@ -18,7 +19,40 @@ OUT = "out/bench"  # the report folder of every target
 
 
 @dataclass(frozen=True)
-class SynthBenchConfig:
+class BenchConfig:
+    """What every target's config checks, in this order: its folder fields (``PATHS``; ``OPTIONAL_PATHS`` may be
+    None), every option, its name lists (``NAMES``), then ``check``, the target's own rules."""
+
+    PATHS: ClassVar[tuple[str, ...]] = ()
+    OPTIONAL_PATHS: ClassVar[tuple[str, ...]] = ()
+    NAMES: ClassVar[tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        for name in self.PATHS:
+            check_path(self, name)
+        for name in self.OPTIONAL_PATHS:
+            check_path(self, name, optional=True)
+        check_options(self)
+        for name in self.NAMES:
+            check_names(self, name)
+        self.check()
+
+    def check(self) -> None:
+        """The target's rules beyond its options: ValueError naming the field."""
+
+
+@dataclass(frozen=True)
+class ReportConfig(BenchConfig):
+    """A target whose work goes in its report folder ``out`` (the command's ``--out``)."""
+
+    out: str | Path = OUT
+    PATHS: ClassVar[tuple[str, ...]] = ("out",)
+
+
+@dataclass(frozen=True)
+class SynthBenchConfig(BenchConfig):
+    """``bench synth``: one subject's synthesis, timed."""
+
     seed: int = option(0, check=integer(0), help="the subject's seed")
     size: int = option(256, check=integer(1), help="image side, pixels (the long side with --aspect)")
     frames: int = option(300, check=integer(1), help="subject frames")
@@ -26,13 +60,13 @@ class SynthBenchConfig:
     aspect: float = option(1.0, metavar="W/H", check=number(0, lo_open=True),
                            help="image width / height, e.g. 0.5625 for a portrait phone video")
 
-    def __post_init__(self) -> None:
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class TrainBenchConfig:
-    out: str | Path = OUT  # the report folder: the subject, the runs and the figures go in it
+class TrainBenchConfig(ReportConfig):
+    """``bench train``: the subject, the runs and the figures go in ``out``."""
+
+    NAMES: ClassVar[tuple[str, ...]] = ("presets",)
+
     seed: int = option(0, check=integer(0), help="the subject's seed")
     size: int = option(256, check=integer(2),
                        help="the subject's image side, pixels (the rasterizer and the step profile also run at half)")
@@ -50,27 +84,26 @@ class TrainBenchConfig:
     repeats: int = option(5, check=integer(1), help="timed steps of the step profile")
     threads: int | None = option(None, check=integer(1), help="the step profile's torch threads (default 1 and 2)")
 
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_options(self)
-        check_names(self, "presets")
-
 
 @dataclass(frozen=True)
-class RenderBenchConfig:
+class RenderBenchConfig(BenchConfig):
+    """``bench render``: the numpy and torch renderers against the float64 oracle."""
+
+    OPTIONAL_PATHS: ClassVar[tuple[str, ...]] = ("avatar_run",)
+
     size: int = option(256, check=integer(2), help="image side, pixels: the renderers run at it and at twice it, the "
                                                    "oracle at half (at most 128)")
     avatar_run: str | Path | None = option(None, metavar="RUN",
                                            help="a trained run folder (default: the untrained default avatar)")
 
-    def __post_init__(self) -> None:
-        check_path(self, "avatar_run", optional=True)
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class ModelsBenchConfig:
-    out: str | Path = OUT  # the report folder: the runs go in out/runs, the score figure beside the report
+class ModelsBenchConfig(ReportConfig):
+    """``bench models``: the runs go in ``out/runs``, the score figure beside the report."""
+
+    PATHS: ClassVar[tuple[str, ...]] = ("out", "corpus")
+    OPTIONAL_PATHS: ClassVar[tuple[str, ...]] = ("pretrained",)
+
     corpus: str | Path = option("out/corpus", metavar="DIR", help="the corpus folder, built when absent")
     subjects: int = option(10, check=integer(1), help="training subjects when building the corpus")
     heldout: int = option(2, check=integer(1), help="held-out subjects when building the corpus")
@@ -88,18 +121,18 @@ class ModelsBenchConfig:
                                               help="corpus variants of the coarse frames, e.g. all,subset (each but "
                                                    "all adds a tex+geo Refiner)")
 
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_path(self, "corpus")
-        check_path(self, "pretrained", optional=True)
-        check_options(self)
+    def check(self) -> None:
         if not isinstance(self.examiner, str) or not self.examiner:
             raise ValueError(f"examiner: expected an Examiner config name, got {self.examiner!r}")
 
 
 @dataclass(frozen=True)
-class DeployBenchConfig:
-    out: str | Path = OUT  # the report folder: the ONNX export, the augment run and the figure go in it
+class DeployBenchConfig(ReportConfig):
+    """``bench deploy``: the ONNX export, the augment run and the figure go in ``out``."""
+
+    PATHS: ClassVar[tuple[str, ...]] = ("out", "corpus", "models")
+    OPTIONAL_PATHS: ClassVar[tuple[str, ...]] = ("avatar_run",)
+
     corpus: str | Path = option("out/corpus", metavar="DIR",
                                 help="the corpus of the `bench models` report (its held-out test frames)")
     models: str | Path = option("out/bench_models", metavar="DIR",
@@ -112,57 +145,47 @@ class DeployBenchConfig:
     threads: int | None = option(None, check=integer(1), help="onnxruntime intra-op threads (default: onnxruntime's)")
     augment_frames: int = option(8, check=integer(1), help="source frames of the augment run")
 
-    def __post_init__(self) -> None:
-        for name in ("out", "corpus", "models"):
-            check_path(self, name)
-        check_path(self, "avatar_run", optional=True)
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class FramesBenchConfig:
-    out: str | Path = OUT  # the report folder: the generated subject (reused when there) and the run go in it
+class FramesBenchConfig(ReportConfig):
+    """``bench frames``: the generated subject (reused when there) and the run go in ``out``."""
+
     frames: int = option(1500, check=integer(1), help="frames of the generated subject")
     size: int = option(1024, check=integer(1), help="its image side, pixels")
     iterations: int = option(20, check=integer(1), help="training iterations")
 
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class StabilityBenchConfig:
-    out: str | Path = OUT  # the report folder: the training cases' runs and the exported models go in it
+class StabilityBenchConfig(ReportConfig):
+    """``bench stability``: the training cases' runs and the exported models go in ``out``."""
+
     seeds: int = option(2, check=integer(1), help="extreme scenes drawn")
     iterations: int = option(30, check=integer(1), help="training steps of each training case")
 
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class ScaleBenchConfig:
+class ScaleBenchConfig(BenchConfig):
+    """``bench scale``: samples/s at 1 and 2 processes."""
+
     size: int = option(64, check=integer(1), help="the random triplets' image side, pixels (a multiple of the compact "
                                                   "Refiner's downsampling)")
     batch: int = option(4, check=integer(1), help="samples per process and step")
     iterations: int = option(20, check=integer(1), help="timed steps per series")
     seed: int = option(0, check=integer(0), help="the Refiner's initial weights and the triplets")
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         from trioman.toolkit.model_training import REFINER_SIZES
         from trioman.toolkit.refiner import RefinerConfig
 
-        check_options(self)
         step = RefinerConfig(conditions="tex+geo", **REFINER_SIZES["compact"]).total_downsample
         if self.size % step:
             raise ValueError(f"size: must be a multiple of {step} (the compact Refiner's downsampling), got {self.size}")
 
 
 @dataclass(frozen=True)
-class FitBenchConfig:
-    out: str | Path = OUT  # the report folder; subjects, videos and fits go in out/fit_work
+class FitBenchConfig(ReportConfig):
+    """``bench fit``: subjects, videos and fits go in ``out/fit_work``."""
+
     seed: int = option(1004, check=integer(0),
                        help="the first subject's seed (the ablation's held-out subjects are 1004-1006)")
     subjects: int = option(3, check=integer(1), help="subjects")
@@ -178,33 +201,23 @@ class FitBenchConfig:
     avatar_iterations: int = option(0, check=integer(0), help="> 0: also trains the avatar on the fit and on the true "
                                                               "poses this long (the cost of fitting)")
 
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class LandmarksBenchConfig:
-    out: str | Path = OUT  # the report folder; the subjects go in out/landmarks_work
+class LandmarksBenchConfig(ReportConfig):
+    """``bench landmarks``: the subjects go in ``out/landmarks_work``."""
+
     seed: int = option(2000, check=integer(0), help="the calibration subjects' first seed (apart from the ablation's "
                                                     "and bench fit's 1004-1006)")
     subjects: int = option(4, check=integer(1), help="calibration subjects")
     size: int = option(540, check=integer(1), help="their image side, pixels")
     frames: int = option(60, check=integer(1), help="frames of each subject")
 
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_options(self)
-
 
 @dataclass(frozen=True)
-class AugmentCostBenchConfig:
-    out: str | Path = OUT  # the report folder: the subjects and the runs go in it
+class AugmentCostBenchConfig(ReportConfig):
+    """``bench augment-cost``: the subjects and the runs go in ``out``."""
+
     size: int | None = option(None, check=integer(16), help="one image side, pixels (default: 128 and 256)")
     frames: int = option(96, check=integer(6), help="subject frames")
     iterations: int = option(300, check=integer(1), help="training steps of both runs")
     seed: int = option(0, check=integer(0), help="the subject's seed")
-
-    def __post_init__(self) -> None:
-        check_path(self, "out")
-        check_options(self)
