@@ -31,8 +31,10 @@ demo: install
 lint: install
 	$(BIN)/ruff check .
 
+# The runtime's tests run twice: with torch, and as on a machine without it (tests/conftest.py blocks the import).
 test: lint
 	$(BIN)/python -m pytest -q
+	TRIOMAN_TEST_WITHOUT_TORCH=1 $(BIN)/python -m pytest -q tests/runtime
 
 clean:
 	rm -rf $(VENV) out *.egg-info
