@@ -31,6 +31,7 @@ from trioman.runtime.preview import contact_sheet
 from trioman.runtime.video_input import VideoInfo, open_frames
 from trioman.toolkit.fit.config import FitConfig, FitRunConfig
 from trioman.toolkit.fit.fitter import DIST_MAP_SIDE, FitResult, Observations, fit_sequence
+from trioman.toolkit.train.config import FITTED_BY
 from trioman.runtime.stages import StageLog
 
 FIT_JSON, FIT_MD, OVERLAY_PNG, OVERLAY_MP4 = FIT_REPORT_FILES
@@ -151,7 +152,7 @@ def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = No
 
     with log.stage("write subject"):
         masks = tracked.masks
-        generator = {"tool": "trioman fit", "version": __version__, "source": source.name,
+        generator = {"tool": FITTED_BY, "version": __version__, "source": source.name,
                      "selection": dataclasses.asdict(cfg.selection), "focal": float(result.K[0, 0]),
                      "fit": {k: v for k, v in dataclasses.asdict(fit_cfg).items() if k != "phenotype"}}
         subject = save_subject(

@@ -6,7 +6,7 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 from trioman.runtime.options import check_options, integer, number, option
 from trioman.toolkit.avatar.config import AvatarConfig
@@ -46,9 +46,10 @@ class TrainConfig:
                                       "frames (trioman augment --out DIR), sampled with the subject's frames")
     extra_weight: float = option(1.0, check=number(0), help="loss weight of the --extra-frames frames")
     augment: AugmentConfig | None = None  # online augmentation (toolkit/train/augmentation.py); None: off
-    refine_poses: bool = option(False, help="learn corrections of the subject's poses with the avatar (poses fitted to a "
-                                "video, trioman fit; toolkit/train/pose_corrections.py): the held-out frames take the "
-                                "corrections of the frames around them")
+    refine_poses: bool | None = option(None, default_text="on for a subject written by trioman fit, unless augmenting",
+                                       help="learn corrections of the subject's poses with the avatar (poses fitted to "
+                                            "a video; toolkit/train/pose_corrections.py): the held-out frames take the "
+                                            "corrections of the frames around them")
     pose_lr: float = 3e-4  # learning rate of the pose corrections (rad, m; same decay)
     pose_start: float = 0.3  # share of the iterations before the corrections learn (an early avatar misleads them)
     pose_knot_every: int = 4  # frames between the corrections' knots along a sequence
@@ -110,6 +111,18 @@ PRESETS: dict[str, TrainConfig] = {
     "full": TrainConfig(preset="full", iterations=6000, supervise_plain=True, avatar=AvatarConfig(
         subdivisions=2, point_colors=True, scale_init=1.0, triplane_res=128, pose_subdivisions=0)),
 }
+
+
+FITTED_BY = "trioman fit"  # subject.json's generator.tool of a subject whose poses were fitted to its video
+
+
+def with_subject_defaults(cfg: TrainConfig, generator: Mapping[str, Any]) -> TrainConfig:
+    """``cfg`` with the settings it leaves to the subject resolved (``generator``: subject.json's): ``refine_poses``
+    None is on for a subject fitted to its video by trioman fit when not augmenting (the corrections' gain was
+    measured without augmentation: docs/fit.md), else off."""
+    if cfg.refine_poses is not None:
+        return cfg
+    return dataclasses.replace(cfg, refine_poses=generator.get("tool") == FITTED_BY and cfg.augment is None)
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:

@@ -32,7 +32,7 @@ from trioman.toolkit.loops.model_run import ModelRun
 from trioman.toolkit.metrics import psnr, ssim, ssim_map
 from trioman.toolkit.render import rasterize
 from trioman.toolkit.train.augmentation import Augmenter
-from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.train.config import TrainConfig, with_subject_defaults
 from trioman.toolkit.train.data import join_frames, load_frames
 from trioman.toolkit.train.pose_corrections import PoseCorrections
 from trioman.toolkit.train.resume import CONFIG_JSON, check_resume, new_record, read_record, write_record
@@ -175,6 +175,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         if not resume and (run / CONFIG_JSON).exists():  # one that ran while this one was checking its inputs
             raise _run_is_there(run)
         subject = load_subject(subject_path)
+        cfg = with_subject_defaults(cfg, subject.meta.get("generator", {}))
         cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
         frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
         own = len(frames)  # the subject's own frames come first in the set (pose corrections apply to them)

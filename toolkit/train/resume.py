@@ -28,7 +28,7 @@ from trioman.runtime.formats.subject import BODY_NPZ, FRAMES_NPZ, SUBJECT_JSON
 from trioman.runtime.outputs import atomic_write_text
 from trioman.runtime.options import declared, flags
 from trioman.toolkit.train.augment_config import AugmentConfig
-from trioman.toolkit.train.config import PRESETS, TrainConfig
+from trioman.toolkit.train.config import PRESETS, TrainConfig, with_subject_defaults
 
 CONFIG_JSON = "config.json"
 _SHOWN = 4  # differing config fields named in a refusal
@@ -51,6 +51,7 @@ def new_record(subject: Subject, cfg: TrainConfig) -> dict[str, Any]:
         "trioman_version": __version__,
         "subject": str(Path(subject.root).resolve()),
         "subject_sha256": subject_sha256(subject),
+        "subject_tool": subject.meta.get("generator", {}).get("tool"),  # what the subject-dependent defaults follow
         "extra_frames_sha256": None if cfg.extra_frames is None else subject_sha256(load_subject(cfg.extra_frames)),
         "config_hash": cfg.digest(),
         "threads": torch.get_num_threads(),
@@ -121,7 +122,9 @@ def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = No
     saved = TrainConfig.from_dict(record["train"])
     extensions = record.get("extensions") or []
     first = extensions[0]["iterations_before"] if extensions else saved.iterations
-    base = PRESETS.get(saved.preset, TrainConfig())
+    # the preset's defaults as the run's subject resolved them (a record without the subject's tool predates them)
+    base = with_subject_defaults(dataclasses.replace(PRESETS.get(saved.preset, TrainConfig()), augment=saved.augment),
+                                 {"tool": record.get("subject_tool")})
     words = ["trioman", "train", str(record.get("subject", "SUBJECT")), "--out", str(run)]
     if saved.preset != "quick":
         words += ["--preset", saved.preset]

@@ -12,7 +12,8 @@ from trioman.runtime.formats import load_subject, save_subject  # noqa: E402
 from trioman.toolkit.evaluate import evaluate, run_poses  # noqa: E402
 from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
-from trioman.toolkit.train.config import TrainConfig  # noqa: E402
+from trioman.toolkit.train.augment_config import AugmentConfig  # noqa: E402
+from trioman.toolkit.train.config import FITTED_BY, TrainConfig, with_subject_defaults  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
 from trioman.toolkit.train.pose_corrections import PoseCorrections  # noqa: E402
 
@@ -103,6 +104,38 @@ def test_command_line_refine_poses(noisy, tmp_path, capsys):
     assert main(["eval", str(tmp_path / "r"), "--no-video", "--quiet"]) == 0
     assert "PSNR" in capsys.readouterr().out
     assert load_checkpoint(list_checkpoints(tmp_path / "r")[-1])["pose_corrections"]["pose"].abs().max() > 0
+
+
+@pytest.mark.parametrize("given, tool, augment, resolved", [
+    (None, FITTED_BY, None, True), (None, "trioman synth", None, False), (None, "trioman import exavatar", None, False),
+    (None, FITTED_BY, AugmentConfig(mode="aligned"), False), (False, FITTED_BY, None, False),
+    (True, "trioman synth", None, True)])
+def test_pose_corrections_default_to_fitted_subjects(given, tool, augment, resolved):
+    cfg = with_subject_defaults(TrainConfig(refine_poses=given, augment=augment), {"tool": tool})
+    assert cfg.refine_poses is resolved
+
+
+def test_a_subject_of_trioman_fit_is_trained_with_corrections_unless_told(noisy, tmp_path):
+    import dataclasses
+    import json
+    import shutil
+
+    from trioman.toolkit.train.resume import resume_command
+
+    fitted = tmp_path / "fitted"
+    shutil.copytree(noisy, fitted)
+    meta = json.loads((fitted / "subject.json").read_text())
+    (fitted / "subject.json").write_text(json.dumps({**meta, "generator": {"tool": FITTED_BY}}))
+    cfg = TrainConfig(iterations=4, checkpoint_every=4, avatar=TINY_AVATAR, pose_start=0.0)
+    for name, subject, given, learnt in (("auto", fitted, None, True), ("off", fitted, False, False),
+                                         ("synthetic", noisy, None, False)):
+        run = train(subject, tmp_path / name, dataclasses.replace(cfg, refine_poses=given), progress=False)
+        assert json.loads((run / "config.json").read_text())["train"]["refine_poses"] is learnt
+        assert ("pose_corrections" in load_checkpoint(list_checkpoints(run)[-1])) is learnt
+        # the run resumes from its record with the same call (the default resolved the same way)
+        train(subject, run, dataclasses.replace(cfg, refine_poses=given), resume=True, progress=False)
+        # its resume hint adds no flag the subject already implies
+        assert "refine-poses" not in resume_command(run, json.loads((run / "config.json").read_text())) or given is False
 
 
 @pytest.mark.parametrize("field, value", [("pose_start", 1.0), ("pose_start", -0.1), ("pose_knot_every", 0), ("pose_lr", 0.0)])
