@@ -16,12 +16,11 @@ from trioman.bench.ablation.plan import needed_models, plan_jobs, run_iterations
 from trioman.bench.ablation.report import bar_charts, summarise, variant_grid
 from trioman.bench.ablation.subjects import fit_error, regime_subject
 from trioman.bench.ablation_config import AblationBenchConfig
+from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, finished, triplet_paths
+from trioman.toolkit.lpips import load_lpips_or_say_why
 
 
 def bench_ablation(config: AblationBenchConfig) -> dict:
-    from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
-    from trioman.toolkit.lpips import load_lpips_or_say_why
-
     corpus, out = Path(config.corpus), Path(config.out)
     if not (corpus / CORPUS_JSON).is_file():
         build_corpus(corpus, CorpusConfig(train_subjects=config.subjects, heldout_subjects=config.heldout, size=config.size,
@@ -42,8 +41,6 @@ def bench_ablation(config: AblationBenchConfig) -> dict:
     keys = needed_models(sorted(only) if only is not None else list(known))
     models, model_info = trained_models(out) if report_only else train_models(corpus, out, config, keys)
     print(f"bench ablation: Refiners and Examiner ready ({time.perf_counter() - t0:.0f} s)", flush=True)
-    from trioman.toolkit.corpus import finished
-
     missing: list[str] = []
     lpips = load_lpips_or_say_why("bench ablation")
     results: dict[str, dict] = {}

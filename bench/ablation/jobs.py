@@ -3,16 +3,19 @@ that orders them, and the scheduler that trains them in worker processes."""
 
 from __future__ import annotations
 
+import concurrent.futures
+import multiprocessing
 import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 
-if TYPE_CHECKING:
-    from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.lpips import load_lpips
+from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.train.fork import fork_run
+from trioman.toolkit.train.loop import train
 
 
 @dataclass(frozen=True)
@@ -42,9 +45,6 @@ def _cost(job: Job) -> float:
 
 def run_job(job: Job, lpips=None) -> None:
     """Train ``job``'s run (resumed when it is there, forked first when it is not and ``job.fork`` says from where)."""
-    from trioman.toolkit.train.fork import fork_run
-    from trioman.toolkit.train.loop import train
-
     if job.fork is not None and not (job.run / "config.json").exists():
         fork_run(job.fork[0], job.run, job.cfg, job.fork[1])
     train(job.subject, job.run, job.cfg, resume=(job.run / "config.json").exists(), progress=False, lpips=lpips,
@@ -53,8 +53,6 @@ def run_job(job: Job, lpips=None) -> None:
 
 def _train_run(job: Job, threads: int, with_lpips: bool) -> None:
     """One avatar run in a worker process of ``train_in_parallel``, with ``threads`` torch threads."""
-    from trioman.toolkit.lpips import load_lpips
-
     torch.set_num_threads(threads)
     run_job(job, load_lpips() if with_lpips else None)
 
@@ -65,9 +63,6 @@ def train_in_parallel(todo: list[Job], jobs: int, with_lpips: bool) -> None:
     stop early, started first), and of the runs ready to start the longest goes first (``_cost``); one line per
     finished run. A failed run stops the others not yet started and is raised naming its folder (the finished
     ones stay; a rerun resumes the rest)."""
-    import concurrent.futures
-    import multiprocessing
-
     threads = max(1, (os.cpu_count() or 1) // jobs)
     t = time.perf_counter()
     pending = list(todo)

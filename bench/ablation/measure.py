@@ -11,16 +11,30 @@ import numpy as np
 import torch
 
 from trioman.bench.ablation_config import AblationPlan
+from trioman.bench.common import batched, mean_metrics
+from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
+from trioman.runtime.formats import load_subject
+from trioman.runtime.generator import sample
+from trioman.runtime.image_io import write_png
+from trioman.runtime.metrics import psnr as psnr_db
+from trioman.runtime.preview import contact_sheet
+from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
+from trioman.toolkit.evaluate import evaluate, load_run
+from trioman.toolkit.loops.checkpoint import latest_checkpoint
+from trioman.toolkit.model_training import nchw, refiner_batch
+from trioman.toolkit.refiner import load_refiner
+from trioman.toolkit.synth.subject import TruthRenderer
 from trioman.toolkit.train.augment_config import AugmentConfig
+from trioman.toolkit.train.augmentation import render_candidate
+from trioman.toolkit.train.loop import AUGMENT_JSON
+from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
+from trioman.toolkit.triplets import TripletSet
 
 FUSED_TEXTURE = 256  # texels a side of the fused texture's row in the frame-level table (AlignConfig.texture)
 
 
 def evaluated(run: Path, iterations: int, lpips, poses: str = "stored") -> dict:
     """A finished run's test metrics (evaluated once), training time and augmentation record."""
-    from trioman.toolkit.evaluate import evaluate
-    from trioman.toolkit.train.loop import AUGMENT_JSON
-
     summary_file = run / "eval_test" / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
     if summary is None or summary["step"] != iterations or summary.get("poses_key") != poses:
@@ -35,12 +49,6 @@ def condition_check(refiner_run: Path, heldout: list[Path], conditions: str = "t
     """Masked PSNR of refinement (``conditions`` tex+geo or warp+geo) on held-out test triplets with the true
     conditions; without the reference (tex+geo: another subject's frame; warp+geo: nothing carried, the coarse
     render as the aligned reference); with a zero normal map (a Refiner that uses a condition loses PSNR)."""
-    from trioman.bench.common import batched, mean_metrics
-    from trioman.toolkit.model_training import nchw, refiner_batch
-    from trioman.toolkit.refiner import load_refiner
-    from trioman.toolkit.loops.checkpoint import latest_checkpoint
-    from trioman.toolkit.triplets import TripletSet
-
     model = load_refiner(latest_checkpoint(refiner_run))
     test = TripletSet.load(heldout).evaluation("test")
     tb = refiner_batch(test)
@@ -73,18 +81,6 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     beyond the body mesh at the draw (hair, loose clothes): their share of the person, how much of them the carried
     mask and the avatar's alpha cover (recall) and how much either adds outside the person (spill, a share of the
     person's pixels), and each kind's PSNR on them alone}."""
-    from trioman.runtime.aligned import AlignConfig, Aligner, SourceViews
-    from trioman.runtime.formats import load_subject
-    from trioman.runtime.generator import sample
-    from trioman.runtime.image_io import write_png
-    from trioman.runtime.metrics import psnr as psnr_db
-    from trioman.runtime.preview import contact_sheet
-    from trioman.runtime.pseudo_gt import PseudoConfig, make_pseudo_frames
-    from trioman.toolkit.evaluate import load_run
-    from trioman.toolkit.synth.subject import TruthRenderer
-    from trioman.toolkit.train.augmentation import render_candidate
-    from trioman.toolkit.train.pseudo_models import load_pseudo_refiner
-
     subj = load_subject(subject)
     try:
         truth_renderer = TruthRenderer(subj)
@@ -179,8 +175,6 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
 
 def _source(subj, position: int, i: int, bg: np.ndarray):
     """Training frame ``i`` (``position`` among the training frames) over ``bg``: the shared step's source frame."""
-    from trioman.runtime.pseudo_gt import Source
-
     m = subj.mask(i)[..., None]
     return Source(position, (subj.image(i) * m + (1 - m) * bg).astype(np.float32), np.asarray(subj.K[i], np.float64), bg)
 
@@ -199,12 +193,6 @@ def examiner_choices(subj, avatar, models: dict[str, Path], truth_renderer, alig
     pick is the candidate closer to the truth, "psnr_chosen" / "psnr_other": mean masked PSNR vs the truth,
     "view_chosen" / "view_other": mean camera change from the source frame (degrees), "pose_chosen" /
     "pose_other": mean summed joint-angle change (degrees), "score_gap": mean score difference}."""
-    from trioman.runtime.generator import sample
-    from trioman.runtime.metrics import psnr as psnr_db
-    from trioman.runtime.pseudo_gt import PseudoConfig, make_pseudo_frames
-    from trioman.toolkit.train.augmentation import render_candidate
-    from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
-
     refiner = load_pseudo_refiner(str(models["refiner_warp+geo"]))
     examiner = load_pseudo_examiner(str(models["examiner"]))
     rng = np.random.default_rng(seed + 1)

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from trioman.bench.ablation_config import AblationBenchConfig
+from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
 
 
 def _model_run(out: Path, key: str) -> Path:
@@ -15,8 +16,6 @@ def _model_run(out: Path, key: str) -> Path:
 
 def train_models(corpus: Path, out: Path, config: AblationBenchConfig, keys: list[str]) -> tuple[dict[str, Path], dict]:
     """Train (or reuse, when finished) the models ``keys`` in OUT/models; the others already there are used too."""
-    from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
-
     fit = FitConfig(steps=config.refiner_steps, batch=config.batch, crop=config.crop, baseline_frames=config.baseline_frames)
     for key in keys:
         if key == "examiner":

@@ -9,6 +9,8 @@ from pathlib import Path
 
 from trioman.bench.ablation.jobs import Job
 from trioman.bench.ablation_config import ALL_VARIANTS, LEVERS, AblationPlan
+from trioman.toolkit.corpus import finished
+from trioman.toolkit.train.config import preset
 
 # AugmentConfig settings of a variant beyond its mode and Refiner condition.
 SETTINGS = {"GRk_warp+geo": {"keep_carried": True}, "GRE": {"keep_carried": True}}
@@ -19,8 +21,6 @@ def variant_runs(plan: AblationPlan) -> list[tuple[str, int]]:
 
 
 def _train_config(name: str, seed: int, plan: AblationPlan, models: dict[str, Path]):
-    from trioman.toolkit.train.config import preset
-
     mode, cond = next((m, c) for n, m, c, _ in ALL_VARIANTS if n == name)
     avatar = dataclasses.replace(preset("quick").avatar, seed=seed)  # a seed draws the initial weights too
     if name == "baseline":
@@ -59,8 +59,6 @@ def plan_jobs(plan: AblationPlan, out: Path, subjects: dict[str, Path], models: 
     warm-ups first: the runs of one subject and seed as long as an augmented run, two or more of them not yet
     started, fork from one shared real-frame warm-up (the control's first ``start`` steps, trained once with
     ``threads`` torch threads, the count the forks train with; toolkit/train/fork.py)."""
-    from trioman.toolkit.corpus import finished
-
     step = int(round(plan.schedule.start * plan.augmented_iterations))
     warmups, jobs = [], []
     for h, subject in subjects.items():

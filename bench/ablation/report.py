@@ -9,6 +9,9 @@ import numpy as np
 
 from trioman.bench.ablation.measure import FUSED_TEXTURE
 from trioman.bench.ablation_config import ALL_VARIANTS
+from trioman.runtime.image_io import write_png
+from trioman.runtime.preview import contact_sheet
+from trioman.toolkit.evaluate import load_run, render_frame
 
 LABELS = {
     "baseline": "Baseline", "baseline_long": "Baseline, equal steps (control)", "G": "+ Generator",
@@ -82,10 +85,6 @@ def summarise(results: dict[str, dict]) -> dict:
 
 def variant_grid(out: Path, name: str, runs: list[tuple[str, Path]], frames: int = 3) -> Path:
     """The same test frames across the (variant, seed-0 run) ``runs``: rows = frames, columns = GT + variants."""
-    from trioman.runtime.image_io import write_png
-    from trioman.runtime.preview import contact_sheet
-    from trioman.toolkit.evaluate import load_run, render_frame
-
     images, labels = [], []
     loaded = [(v, load_run(r)[0]) for v, r in runs]
     _, subj, _, _ = load_run(runs[0][1])
@@ -103,6 +102,7 @@ def variant_grid(out: Path, name: str, runs: list[tuple[str, Path]], frames: int
 
 
 def bar_charts(report: dict, out: Path) -> None:
+    # here, not at the top: the Agg backend is picked before pyplot loads, only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")

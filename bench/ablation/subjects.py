@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from trioman.bench.ablation_config import AblationPlan
-
-if TYPE_CHECKING:
-    from trioman.toolkit.fit.config import FitConfig
+from trioman.runtime.formats import load_subject
+from trioman.runtime.frame_selection import FrameSelection
+from trioman.toolkit.fit.config import FitConfig, FitRunConfig
+from trioman.toolkit.fit.evaluate import compare
+from trioman.toolkit.fit.run import fit_video
+from trioman.toolkit.synth.linked import link_fitted
+from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 
 
 def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig | None = None) -> Path:
@@ -25,9 +28,6 @@ def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig 
     ``fit``: the fitter's settings (default: `trioman fit`'s)."""
     if not plan.capture:
         return subject
-    from trioman.runtime.formats import load_subject
-    from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
-
     target = out / "subjects" / (subject.name + plan.capture)
     if (target / "subject.json").is_file():
         return target
@@ -37,11 +37,6 @@ def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig 
     if plan.poses == "true":
         synthesize_subject(cfg, target, progress=False)
         return target
-    from trioman.runtime.frame_selection import FrameSelection
-    from trioman.toolkit.fit.config import FitRunConfig
-    from trioman.toolkit.fit.run import fit_video
-    from trioman.toolkit.synth.linked import link_fitted
-
     stem = out / "subjects" / (subject.name + plan.capture)
     truth_dir, video, fit_dir = stem.with_name(stem.name + "_truth"), stem.with_name(stem.name + ".mp4"), stem.with_name(stem.name + "_fit")
     if not (truth_dir / "subject.json").is_file() or not video.is_file():
@@ -59,9 +54,6 @@ def fit_error(subject: Path) -> dict | None:
     """A fitted regime subject's pose error against its truth (toolkit/fit/evaluate.compare: MPJPE, PA-MPJPE and
     per group in mm, mask IoU; over all fitted frames, and PA-MPJPE over the test frames), or None for a subject
     of true poses."""
-    from trioman.runtime.formats import load_subject
-    from trioman.toolkit.fit.evaluate import compare
-
     fitted = subject.with_name(subject.name + "_fit")
     if not (fitted / "subject.json").is_file():
         return None
