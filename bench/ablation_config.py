@@ -1,4 +1,4 @@
-"""The config of ``trioman bench ablation`` (bench/ablation.py): the rows it trains, the avatar runs' plan and the
+"""The config of ``trioman bench ablation`` (bench/ablation/): the rows it trains, the avatar runs' plan and the
 benchmark's own settings, each field with its option (runtime/options.py). The augmented runs' schedule is an
 AugmentConfig (``train --augment``'s defaults; ``SCHEDULE`` its options the command takes), not a copy of its knobs.
 Standard-library imports only (the command builds its parser from these fields)."""

@@ -10,7 +10,8 @@ pytest.importorskip("torch")
 pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
-from trioman.bench.ablation import LABELS, _frame_target, ablation_markdown, summarise  # noqa: E402
+from trioman.bench.ablation import LABELS, ablation_markdown, summarise  # noqa: E402
+from trioman.bench.ablation.report import _frame_target  # noqa: E402
 from trioman.bench.ablation_config import LEVERS, VARIANTS, AblationPlan  # noqa: E402
 from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
 
