@@ -224,3 +224,19 @@ def test_the_frame_level_target_reads_each_kind_and_says_which_holds():
     frames["refined (warp+geo), carried pixels kept, fused texture 256"] = 29.9  # below its aligned reference
     assert _frame_target(frames)[1].endswith("does not hold.")
     assert _frame_target({"coarse": 28.0, "aligned (no Refiner)": 30.0}) == []  # a report without the Refiner's rows
+
+
+def test_no_row_learns_pose_corrections():
+    """On fitted subjects (--poses fit: trioman fit's, where corrections are on by default without --augment) every
+    row, the control's included, trains without them: the rows differ by the augmentation alone."""
+    from collections import defaultdict
+    from pathlib import Path
+
+    from trioman.bench.ablation.plan import _train_config
+    from trioman.bench.ablation_config import ALL_VARIANTS
+    from trioman.toolkit.train.config import FITTED_BY, with_subject_defaults
+
+    models = defaultdict(lambda: Path("model.onnx"))
+    for name, *_ in ALL_VARIANTS:
+        cfg = with_subject_defaults(_train_config(name, 0, AblationPlan(detail_sigma=2.0), models), {"tool": FITTED_BY})
+        assert cfg.refine_poses is False, name
