@@ -70,7 +70,7 @@ def bench_refiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads
     """One row per Refiner variant: torch eager (the reference) and the ONNX files of ``onnx_dir`` (fp32 at each
     optimisation level, int8, fp16; a missing one noted as rejected) on ``frames`` (TripletSet.evaluation):
     ms per frame (batch 1, onnxruntime ``threads``), max abs error against torch, PSNR against the GT."""
-    from trioman.runtime.models import RefinerModel
+    from trioman.runtime.onnx_models import RefinerModel
     from trioman.toolkit.model_training import refiner_batch
     from trioman.toolkit.refiner import load_refiner, refiner_inputs
 
@@ -102,7 +102,7 @@ def bench_refiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads
 def bench_examiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads: int | None) -> list[dict]:
     """One row per Examiner variant, as ``bench_refiner_rows``, on the (real, reference) and (coarse, reference)
     pairs of ``frames``: max abs score error against torch and keep/drop agreement with it."""
-    from trioman.runtime.models import ExaminerModel
+    from trioman.runtime.onnx_models import ExaminerModel
     from trioman.toolkit.examiner import load_examiner
     from trioman.toolkit.model_training import nchw
 

@@ -206,7 +206,7 @@ def onnx_rows(models: dict[str, tuple[Any, int]], images: dict[str, np.ndarray],
     import torch
 
     from trioman.export.onnx_models import VARIANTS, export_onnx, file_name
-    from trioman.runtime.models import load_model
+    from trioman.runtime.onnx_models import load_model
 
     (refiner, _), (examiner, _) = models.values()
     report = export_onnx(refiner=refiner, examiner=examiner, out=folder, variants=VARIANTS, size=MODEL_SIZE,

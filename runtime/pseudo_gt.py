@@ -18,7 +18,7 @@ import numpy as np
 
 from trioman.runtime.aligned import Aligned, Aligner
 from trioman.runtime.generator import Candidate, keep_detail
-from trioman.runtime.models import ALIGNED_CONDITIONS
+from trioman.runtime.onnx_models import ALIGNED_CONDITIONS
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.pseudo_kinds import KINDS, MASKS, STAGES
 from trioman.runtime.skeleton import SkinnedMesh

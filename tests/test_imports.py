@@ -119,7 +119,7 @@ def test_the_rules_catch_what_they_should(tmp_path, monkeypatch):
             [("private", "trioman.runtime.render._hidden")],
         ("trioman.cli", "trioman.bench.common", None): [],
         ("trioman.runtime.augment", "trioman", "__version__"): [],
-        ("trioman.runtime.models", "onnx", None): [("forbidden", "onnx")],
+        ("trioman.runtime.onnx_models", "onnx", None): [("forbidden", "onnx")],
         ("trioman.toolkit.train.loop", "matplotlib.pyplot", None): [("forbidden", "matplotlib.pyplot")],
         ("trioman.toolkit.synth.subject", "anny", None): [("forbidden", "anny")],
         ("trioman.toolkit.fit.fitter", "anny", None): [],

@@ -27,7 +27,7 @@ from trioman.toolkit.synth.subject import TruthRenderer
 from trioman.toolkit.train.augment_config import AugmentConfig
 from trioman.toolkit.train.augmentation import render_candidate
 from trioman.toolkit.train.loop import AUGMENT_JSON
-from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
+from trioman.toolkit.train.augment_models import load_pseudo_examiner, load_pseudo_refiner
 from trioman.toolkit.triplets import TripletSet
 
 FUSED_TEXTURE = 256  # texels a side of the fused texture's row in the frame-level table (AlignConfig.texture)

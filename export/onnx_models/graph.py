@@ -13,7 +13,7 @@ from torch import nn
 
 from trioman.export.onnx_models.constants import BATCH_AXIS, OPSET
 from trioman.export.onnx_models.errors import ExportError
-from trioman.runtime import models as rt
+from trioman.runtime import onnx_models as rt
 from trioman.runtime.outputs import fsync_file, write_synced
 
 

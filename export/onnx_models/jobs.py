@@ -44,7 +44,7 @@ from trioman.export.onnx_models.graph import (
     sort_nodes,
     torch_export,
 )
-from trioman.runtime import models as rt
+from trioman.runtime import onnx_models as rt
 from trioman.runtime.formats.avatar import sha256_file
 from trioman.runtime.metrics import psnr
 
@@ -356,7 +356,7 @@ def decision_agreement(fp32: np.ndarray, other: np.ndarray, threshold: float = K
 
 @contextlib.contextmanager
 def _calibration_without_memory_pattern():
-    """onnxruntime's calibration session built with the memory pattern off (as ``runtime.models`` builds
+    """onnxruntime's calibration session built with the memory pattern off (as ``runtime.onnx_models`` builds
     its sessions: the pattern's block comes on top of the arena chunks of the first run, twice the
     activations' memory), for the duration. Otherwise the session onnxruntime builds: no graph
     optimisation, the calibrator's providers; the same runs, so the same ranges."""

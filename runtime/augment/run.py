@@ -71,7 +71,7 @@ def augment(
     shard: do only that shard's frames, in out/shards/I-of-N (-> its record); merge: assemble ``out``
     from every shard's (package doc).
     """
-    from trioman.runtime.models import ExaminerModel, RefinerModel
+    from trioman.runtime.onnx_models import ExaminerModel, RefinerModel
 
     check_options(per_frame, threshold, seed, frames, limit, examiner, resume, overwrite)
     if mask not in MASKS:

@@ -22,7 +22,7 @@ pytest.importorskip("onnxruntime")
 from trioman.cli import main  # noqa: E402
 from trioman.export import onnx_models as om  # noqa: E402
 from trioman.export.onnx_models import jobs  # noqa: E402
-from trioman.runtime.models import ExaminerModel, RefinerModel, load_model, read_metadata  # noqa: E402
+from trioman.runtime.onnx_models import ExaminerModel, RefinerModel, load_model, read_metadata  # noqa: E402
 from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create_examiner, examiner_loop, load_examiner  # noqa: E402
 from trioman.toolkit.model_training import examiner_batch, refiner_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, refiner_loop  # noqa: E402

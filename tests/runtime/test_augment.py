@@ -23,7 +23,7 @@ from trioman.runtime.formats import FormatError, load_avatar, load_subject  # no
 from trioman.runtime.formats.avatar import sha256_file  # noqa: E402
 from trioman.runtime.generator import GROUPS, sample  # noqa: E402
 from trioman.runtime.image_io import png_header, read_png, to_uint8  # noqa: E402
-from trioman.runtime.models import ExaminerModel, RefinerModel  # noqa: E402
+from trioman.runtime.onnx_models import ExaminerModel, RefinerModel  # noqa: E402
 from trioman.runtime.normal_map import body_normal_map  # noqa: E402
 from trioman.runtime.render import rasterize  # noqa: E402
 

@@ -34,7 +34,7 @@ class Augmenter:
     """The pseudo-GT pool of one training run: rebuilt on schedule, drawn from, saved with checkpoints."""
 
     def __init__(self, cfg: AugmentConfig, subject: Subject, frames: FrameSet, iterations: int, seed: int) -> None:
-        from trioman.toolkit.train.pseudo_models import load_pseudo_examiner, load_pseudo_refiner
+        from trioman.toolkit.train.augment_models import load_pseudo_examiner, load_pseudo_refiner
 
         self.cfg, self.subject, self.frames = cfg, subject, frames
         self.start = cfg.start_step(iterations)

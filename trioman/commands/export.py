@@ -1,7 +1,7 @@
 """``trioman export TARGET ...``: torch -> portable files (standard-library imports only here).
 
 Targets: ``avatar`` (a run's checkpoint -> an avatar folder, docs/formats.md) and ``onnx`` (the
-Refiner and/or Examiner -> ONNX files for trioman.runtime.models, with int8/fp16 variants). Each target is a
+Refiner and/or Examiner -> ONNX files for trioman.runtime.onnx_models, with int8/fp16 variants). Each target is a
 sub-parser with its own arguments; ``run`` dispatches on ``args.target``.
 """
 
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = targets.add_parser(
         "onnx", help="the Refiner and/or Examiner -> ONNX files (fp32, int8, fp16) for the torch-free runtime",
-        description="Export the Refiner and/or the Examiner as ONNX models that trioman.runtime.models loads "
+        description="Export the Refiner and/or the Examiner as ONNX models that trioman.runtime.onnx_models loads "
                     "(docs/formats.md, 'ONNX models'): fp32 checked against torch, int8 variants gated on task "
                     "metrics (a failing one is REJECTED, not written), fp16 for GPUs. Writes export.json.")
     p.add_argument("--refiner", default=None, metavar="CKPT", help="Refiner checkpoint file or run folder (its latest checkpoint)")

@@ -35,7 +35,7 @@ def config(folder: Path, **overrides) -> RefinerConfig:
 
 def onnx_error(model: torch.nn.Module, path: Path, size: int = S) -> float:
     """max |onnxruntime - torch| of the Refiner ONNX file ``path`` against ``model``, measured here on random frames."""
-    from trioman.runtime.models import load_model
+    from trioman.runtime.onnx_models import load_model
 
     names = ("coarse", "reference", "normal")
     x = {n: np.random.default_rng(i).random((2, 3, size, size), dtype=np.float32) for i, n in enumerate(names)}
@@ -114,7 +114,7 @@ def exported(folder, tmp_path_factory):
 def test_onnx_parity_and_contract(exported):
     import onnx
 
-    from trioman.runtime.models import load_model
+    from trioman.runtime.onnx_models import load_model
 
     path, entry, model = exported
     assert entry["status"] == "written" and onnx_error(model, path) <= 1e-3
@@ -132,7 +132,7 @@ def test_onnx_parity_and_contract(exported):
 def test_a_warp_refiner_exports_with_parity(folder, tmp_path):
     """warp+geo (the aligned reference as ``reference``, and the normal map): the same graph contract and parity."""
     from trioman.export.onnx_models import export_refiner_onnx
-    from trioman.runtime.models import load_model
+    from trioman.runtime.onnx_models import load_model
 
     model = create_refiner(config(folder, conditions="warp+geo"), seed=1)
     with torch.no_grad():
@@ -228,7 +228,7 @@ def test_bench_models_with_the_sd_turbo_backbone(folder, corpus, tmp_path):
 
 def test_sizes_follow_the_model_not_the_scratch_config(folder, tmp_path):
     from trioman.export.onnx_models import export_refiner_onnx
-    from trioman.toolkit.train.pseudo_models import TorchRefiner
+    from trioman.toolkit.train.augment_models import TorchRefiner
 
     model = create_refiner(config(folder))  # RefinerConfig's scratch widths would ask for multiples of 16
     assert model.config.total_downsample == 16 and TorchRefiner(model, tmp_path).multiple == 4

@@ -1,4 +1,4 @@
-"""trioman.runtime.models: the onnxruntime wrappers of the exported Refiner and Examiner, and the clear
+"""trioman.runtime.onnx_models: the onnxruntime wrappers of the exported Refiner and Examiner, and the clear
 errors of their loaders. The models are exported once (tiny, fp32) with trioman.export.onnx_models."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from tests.conftest import run_python
 from trioman.runtime.formats import FormatError
-from trioman.runtime.models import Choice, ExaminerModel, RefinerModel, load_model, read_metadata
+from trioman.runtime.onnx_models import Choice, ExaminerModel, RefinerModel, load_model, read_metadata
 
 S = 32
 
@@ -255,7 +255,7 @@ def test_runtime_models_work_where_torch_cannot_be_imported(models):
     proc = run_python(f"""
         import sys
         import numpy as np
-        from trioman.runtime.models import ExaminerModel, RefinerModel, load_model
+        from trioman.runtime.onnx_models import ExaminerModel, RefinerModel, load_model
         r = load_model({str(models / 'refiner.onnx')!r})
         x = np.random.default_rng(0).random((2, {S}, {S}, 3), dtype=np.float32)
         assert r.refine(x, x, x).shape == x.shape

@@ -2,7 +2,7 @@
 folder, a checkpoint (.pt) or an exported ONNX file (.onnx).
 
 Both sides take and return numpy HWC float32 images in [0, 1], as the runtime's ONNX wrappers
-(``trioman.runtime.models``) do, so training and ``trioman augment`` feed the models the same way:
+(``trioman.runtime.onnx_models``) do, so training and ``trioman augment`` feed the models the same way:
 
     refiner.refine(coarse [B, H, W, 3], reference [B, H, W, 3] | None, normal [B, H, W, 3] | None) -> [B, H, W, 3]
     examiner.score(candidates [B, H, W, 3], real [H, W, 3]) -> [B] scores in [0, 1]
@@ -59,7 +59,7 @@ class OnnxRefiner:
     """An exported Refiner (``trioman export onnx``): fixed image size."""
 
     def __init__(self, path: Path) -> None:
-        from trioman.runtime.models import load_model
+        from trioman.runtime.onnx_models import load_model
 
         self.model, self.path = load_model(path, kind="refiner"), path
         self.conditions: str = self.model.conditions
@@ -142,7 +142,7 @@ def load_pseudo_examiner(examiner: str | os.PathLike) -> PseudoExaminer:
         raise FileNotFoundError(f"examiner: not found: {path}")
     try:
         if path.suffix == ".onnx":
-            from trioman.runtime.models import load_model
+            from trioman.runtime.onnx_models import load_model
 
             return load_model(path, kind="examiner")
         return TorchExaminer(load_examiner(_checkpoint_of(path, "examiner")))
