@@ -58,7 +58,8 @@ def test_stage_lines_time_and_peak():
     assert [LINE.match(s).group(1) for s in lines] == ["alloc", "idle"]
     alloc, idle = log.stages
     assert alloc.peak_rss >= 200 * MB and alloc.seconds >= 0
-    assert log.peak_rss == alloc.peak_rss and log.seconds == alloc.seconds + idle.seconds
+    # the log's peak is its stages' highest (a process whose heap already holds 200 MiB free may peak in either)
+    assert log.peak_rss == max(alloc.peak_rss, idle.peak_rss) and log.seconds == alloc.seconds + idle.seconds
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc on Linux")

@@ -20,7 +20,7 @@ import torch
 from trioman.runtime.formats import load_subject
 from trioman.toolkit.loops.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from trioman.toolkit.train.augmentation import Augmenter
-from trioman.toolkit.train.config import TrainConfig
+from trioman.toolkit.train.config import TrainConfig, with_subject_defaults
 from trioman.toolkit.train.loop import TRAIN_LOG
 from trioman.toolkit.train.resume import config_differences, new_record, read_record, write_record
 
@@ -42,6 +42,7 @@ def fork_run(source: str | Path, run: str | Path, cfg: TrainConfig, step: int) -
         raise FileExistsError(f"run: {run} already exists (a fork makes a new run)")
     record = read_record(source)
     base = TrainConfig.from_dict(record["train"])
+    cfg = with_subject_defaults(cfg, {"tool": record.get("subject_tool")})  # as the source's were resolved
     if base.augment is not None:
         raise ValueError(f"source: {source} trains with augmentation; fork from an unaugmented run")
     diff = config_differences(base, dataclasses.replace(cfg, augment=None, checkpoint_every=base.checkpoint_every))
