@@ -238,5 +238,5 @@ def test_no_row_learns_pose_corrections():
 
     models = defaultdict(lambda: Path("model.onnx"))
     for name, *_ in ALL_VARIANTS:
-        cfg = with_subject_defaults(_train_config(name, 0, AblationPlan(detail_sigma=2.0), models), {"tool": FITTED_BY})
+        cfg = with_subject_defaults(_train_config(name, 0, AblationPlan(detail_sigma=2.0), models), FITTED_BY)
         assert cfg.refine_poses is False, name

@@ -28,11 +28,11 @@ from trioman.runtime.outputs import atomic_write_text, check_not_input
 from trioman.runtime.mesh_raster import rasterize_mesh
 from trioman.runtime.person import PersonTracker
 from trioman.runtime.preview import contact_sheet
+from trioman.runtime.stages import StageLog
 from trioman.runtime.video_input import VideoInfo, open_frames
 from trioman.toolkit.fit.config import FitConfig, FitRunConfig
 from trioman.toolkit.fit.fitter import DIST_MAP_SIDE, FitResult, Observations, fit_sequence
 from trioman.toolkit.train.config import FITTED_BY
-from trioman.runtime.stages import StageLog
 
 FIT_JSON, FIT_MD, OVERLAY_PNG, OVERLAY_MP4 = FIT_REPORT_FILES
 SEQUENCE = "video"

@@ -6,7 +6,7 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 from trioman.runtime.options import check_options, integer, number, option
 from trioman.toolkit.avatar.config import AvatarConfig
@@ -116,13 +116,13 @@ PRESETS: dict[str, TrainConfig] = {
 FITTED_BY = "trioman fit"  # subject.json's generator.tool of a subject whose poses were fitted to its video
 
 
-def with_subject_defaults(cfg: TrainConfig, generator: Mapping[str, Any]) -> TrainConfig:
-    """``cfg`` with the settings it leaves to the subject resolved (``generator``: subject.json's): ``refine_poses``
-    None is on for a subject fitted to its video by trioman fit when not augmenting (the corrections' gain was
-    measured without augmentation: docs/fit.md), else off."""
+def with_subject_defaults(cfg: TrainConfig, tool: str | None) -> TrainConfig:
+    """``cfg`` with the settings it leaves to the subject resolved (``tool``: subject.json's generator.tool):
+    ``refine_poses`` None is on for a subject fitted to its video by trioman fit when not augmenting (the
+    corrections' gain was measured without augmentation: docs/fit.md), else off."""
     if cfg.refine_poses is not None:
         return cfg
-    return dataclasses.replace(cfg, refine_poses=generator.get("tool") == FITTED_BY and cfg.augment is None)
+    return dataclasses.replace(cfg, refine_poses=tool == FITTED_BY and cfg.augment is None)
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:

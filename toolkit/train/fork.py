@@ -42,7 +42,7 @@ def fork_run(source: str | Path, run: str | Path, cfg: TrainConfig, step: int) -
         raise FileExistsError(f"run: {run} already exists (a fork makes a new run)")
     record = read_record(source)
     base = TrainConfig.from_dict(record["train"])
-    cfg = with_subject_defaults(cfg, {"tool": record.get("subject_tool")})  # as the source's were resolved
+    cfg = with_subject_defaults(cfg, record.get("subject_tool"))  # as the source's were resolved
     if base.augment is not None:
         raise ValueError(f"source: {source} trains with augmentation; fork from an unaugmented run")
     diff = config_differences(base, dataclasses.replace(cfg, augment=None, checkpoint_every=base.checkpoint_every))

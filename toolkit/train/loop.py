@@ -175,7 +175,7 @@ def train(subject_path: str | Path, run: str | Path, cfg: TrainConfig, resume: b
         if not resume and (run / CONFIG_JSON).exists():  # one that ran while this one was checking its inputs
             raise _run_is_there(run)
         subject = load_subject(subject_path)
-        cfg = with_subject_defaults(cfg, subject.meta.get("generator", {}))
+        cfg = with_subject_defaults(cfg, subject.meta.get("generator", {}).get("tool"))
         cfg, record = _prepare_run(run, subject, cfg, resume, extend_iterations)
         frames = load_frames(subject, "train" if cfg.frames == "train" else None, cfg.image_scale, cfg.frame_stride)
         own = len(frames)  # the subject's own frames come first in the set (pose corrections apply to them)

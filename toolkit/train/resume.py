@@ -124,7 +124,7 @@ def resume_command(run: Path, record: dict[str, Any], extend_to: int | None = No
     first = extensions[0]["iterations_before"] if extensions else saved.iterations
     # the preset's defaults as the run's subject resolved them (a record without the subject's tool predates them)
     base = with_subject_defaults(dataclasses.replace(PRESETS.get(saved.preset, TrainConfig()), augment=saved.augment),
-                                 {"tool": record.get("subject_tool")})
+                                 record.get("subject_tool"))
     words = ["trioman", "train", str(record.get("subject", "SUBJECT")), "--out", str(run)]
     if saved.preset != "quick":
         words += ["--preset", saved.preset]

@@ -111,7 +111,7 @@ def test_command_line_refine_poses(noisy, tmp_path, capsys):
     (None, FITTED_BY, AugmentConfig(mode="aligned"), False), (False, FITTED_BY, None, False),
     (True, "trioman synth", None, True)])
 def test_pose_corrections_default_to_fitted_subjects(given, tool, augment, resolved):
-    cfg = with_subject_defaults(TrainConfig(refine_poses=given, augment=augment), {"tool": tool})
+    cfg = with_subject_defaults(TrainConfig(refine_poses=given, augment=augment), tool)
     assert cfg.refine_poses is resolved
 
 
