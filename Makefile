@@ -10,7 +10,7 @@ TORCH  ?= torch==2.13.0
 # The wheel that carries MediaPipe's pose models (trioman.runtime.person); installed without its dependencies.
 MEDIAPIPE ?= mediapipe==0.10.21
 
-.PHONY: demo lint test install clean
+.PHONY: demo lint test install clean models
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -35,6 +35,17 @@ lint: install
 test: lint
 	$(BIN)/python -m pytest -q
 	TRIOMAN_TEST_WITHOUT_TORCH=1 $(BIN)/python -m pytest -q tests/runtime
+
+# The Refiner and Examiner the package ships (docs/models.md): a realistic corpus, both models trained on its
+# training subjects, exported to ONNX (fp32, parity against torch on held-out triplets), copied into runtime/pretrained.
+MODELS ?= out/models
+models: install
+	$(BIN)/trioman synth-corpus --out $(MODELS)/corpus --style realistic --subjects 4 --heldout 2 --baseline-frames subset --quiet
+	$(BIN)/trioman train-refiner --corpus $(MODELS)/corpus --out $(MODELS)/refiner --conditions warp+geo --baseline-frames subset
+	$(BIN)/trioman train-examiner --corpus $(MODELS)/corpus --out $(MODELS)/examiner --baseline-frames subset
+	$(BIN)/trioman export onnx --refiner $(MODELS)/refiner --examiner $(MODELS)/examiner --variants fp32 \
+		--calibration $(MODELS)/corpus/triplets/heldout/*.npz --out $(MODELS)/onnx --overwrite
+	$(BIN)/trioman export pretrained $(MODELS)/onnx --dest runtime/pretrained --heldout $(MODELS)/corpus/triplets/heldout/*.npz
 
 clean:
 	rm -rf $(VENV) out *.egg-info

@@ -165,7 +165,7 @@ COMMAND_OWN = {"train": {"--out", "--resume", "--extend-iterations", "--quiet"},
                "render": {"--pose", "--out"}, "view": {"--motion", "--subject", "--augmented"},
                "augment": {"--avatar", "--refiner", "--examiner", "--out", "--resume", "--overwrite", "--quiet", "--shard",
                            "--merge"},
-               "export": {"--out", "--checkpoint", "--overwrite", "--refiner", "--examiner"},
+               "export": {"--out", "--checkpoint", "--overwrite", "--refiner", "--examiner", "--dest", "--heldout"},
                "import": {"--subject", "--out", "--body-model-dir", "--masks", "--overwrite"}, "bench": {"--out"}}
 
 

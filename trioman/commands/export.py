@@ -1,7 +1,8 @@
 """``trioman export TARGET ...``: torch -> portable files (standard-library imports only here).
 
-Targets: ``avatar`` (a run's checkpoint -> an avatar folder, docs/formats.md) and ``onnx`` (the
-Refiner and/or Examiner -> ONNX files for trioman.runtime.onnx_models, with int8/fp16 variants). Each target is a
+Targets: ``avatar`` (a run's checkpoint -> an avatar folder, docs/formats.md), ``onnx`` (the
+Refiner and/or Examiner -> ONNX files for trioman.runtime.onnx_models, with int8/fp16 variants) and ``pretrained``
+(an ``onnx`` folder's fp32 models -> the ones the package ships, runtime/pretrained.py). Each target is a
 sub-parser with its own arguments; ``run`` dispatches on ``args.target``.
 """
 
@@ -21,7 +22,7 @@ def flags() -> dict[str, str]:
     from trioman.runtime.options import flags as option_flags
 
     return {**option_flags(*_configs()), "overwrite": "--overwrite", "out": "--out", "refiner": "--refiner",
-            "examiner": "--examiner"}
+            "examiner": "--examiner", "onnx_dir": "ONNX_DIR", "dest": "--dest", "heldout": "--heldout"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,12 +51,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_options(p, onnx_options)
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
+    p = targets.add_parser(
+        "pretrained", help="an `export onnx` folder's fp32 Refiner and Examiner -> the models the package ships",
+        description="Copy the fp32 refiner.onnx and examiner.onnx of a `trioman export onnx` folder into the "
+                    "package's runtime/pretrained/ with models.json (sizes, sha256, parity): the models `trioman train "
+                    "--augment` and `trioman augment` use by default (docs/models.md; `make models` runs the recipe).")
+    p.add_argument("onnx_dir", metavar="ONNX_DIR", help="folder written by trioman export onnx (fp32 of both models)")
+    p.add_argument("--dest", default=None, help="folder to write (default: the installed package's runtime/pretrained)")
+    p.add_argument("--heldout", nargs="+", default=(), metavar="TRIPLETS.npz",
+                   help="triplet files of subjects the models never saw: their quality there goes in the record")
+
 
 def run(args: argparse.Namespace) -> int:
     if args.target == "avatar":
         return _run_avatar(args)
     if args.target == "onnx":
         return _run_onnx(args)
+    if args.target == "pretrained":
+        return _run_pretrained(args)
     raise ValueError(f"target: unknown export target {args.target!r}")
 
 
@@ -95,4 +108,22 @@ def _run_onnx(args: argparse.Namespace) -> int:
                          progress=lambda msg: print(f"export: {msg}", flush=True))
     for line in summary_lines(report):
         print(line)
+    return 0
+
+
+def _run_pretrained(args: argparse.Namespace) -> int:
+    from trioman.export.pretrained import ship_pretrained
+    from trioman.runtime.pretrained import PRETRAINED_DIR
+
+    dest = args.dest or PRETRAINED_DIR
+    record = ship_pretrained(args.onnx_dir, dest, heldout=args.heldout)
+    for kind, e in record["models"].items():
+        print(f"export: {kind:8s} {dest}/{e['file']} ({e['bytes'] / 1e6:.2f} MB, sha256 {e['sha256'][:12]}, "
+              f"input {e['input_size']}, max |onnxruntime - torch| {e['parity_max_abs']:.2g})")
+    if "heldout" in record:
+        q = record["heldout"]
+        print(f"export: held out ({q['test_frames']} test frames of {', '.join(q['subjects'])}): masked PSNR render "
+              f"{q['psnr_render_db']:.2f} dB, refined {q['psnr_refined_db']:.2f} dB ({q['refiner_gain_db']:+.2f}); "
+              f"Examiner AUROC real vs render {q['examiner_auroc_real_vs_render']:.3f}")
+    print(f"export: record {dest}/models.json; the model card is docs/models.md")
     return 0
