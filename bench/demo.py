@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from trioman.runtime.options import check_options, integer, number, option
+from trioman.toolkit.synth.config import STYLES
 
 if TYPE_CHECKING:
     from trioman.runtime.stages import StageLog
@@ -21,13 +22,13 @@ class DemoConfig:
     out: str = option("out/demo", check=lambda v: None if isinstance(v, (str, Path)) and str(v) else "expected a folder path",
                       help="output folder: every stage's output goes in it")
     seed: int = option(0, check=integer(0), help="subject seed")
-    size: int = option(256, check=integer(16), help="image side in pixels")
-    frames: int = option(120, check=integer(6), help="subject frames")
+    style: str = option("realistic", choices=STYLES, help="the subject's look (trioman synth --style)")
+    size: int = option(128, check=integer(16), help="image side in pixels (the shipped models' training size)")
+    frames: int = option(96, check=integer(6), help="subject frames")
     coverage: float = option(0.33, metavar="FRACTION", check=number(0, 1, lo_open=True),
                              help="share of a full turn the training frames span (the regime the augmentation gain was "
                                   "measured in: the test views lie beyond it)")
-    iterations: int = option(500, check=integer(1), help="training iterations of both avatars, quick preset otherwise")
-    model_steps: int = option(200, check=integer(1), help="Refiner and Examiner training steps")
+    iterations: int = option(1000, check=integer(1), help="training iterations of both avatars, quick preset otherwise")
     augment_frames: int = option(24, check=integer(1), help="source frames to augment")
     progress: bool = True  # progress bars (on a terminal only)
 
@@ -35,10 +36,6 @@ class DemoConfig:
         check_options(self)
         if not isinstance(self.progress, bool):
             raise ValueError(f"progress: must be a bool, got {self.progress!r}")
-
-
-# int8 calibration frames and parity / gate frames of the ONNX export (the command's default is 32 each)
-EXPORT_FRAMES = 16
 
 
 def say(line: str) -> None:
@@ -56,7 +53,7 @@ def run_demo(cfg: DemoConfig) -> None:
     log = StageLog(say=say)
     lpips = load_lpips_or_say_why("demo")
     base = _baseline(cfg, out, log, lpips, progress)
-    aug = _augment_stage(cfg, out, base["run"], base["avatar_dir"], log, progress)
+    aug = _augment_stage(cfg, out, base["avatar_dir"], log, progress)
     final = _augmented_avatar(cfg, out, log, lpips, progress)
     with log.stage("novel views"):
         from trioman.toolkit.evaluate import comparison_grid
@@ -85,7 +82,7 @@ def _baseline(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) 
     from trioman.toolkit.synth.turntable import write_turntable
     from trioman.toolkit.train.loop import RUN_FOLDER, train
 
-    synth = SynthConfig(seed=cfg.seed, size=cfg.size, frames=cfg.frames, coverage=cfg.coverage)
+    synth = SynthConfig(seed=cfg.seed, size=cfg.size, frames=cfg.frames, coverage=cfg.coverage, style=cfg.style)
     with log.stage("synth"):
         subject = synthesize_subject(synth, out / "subject", overwrite=True, progress=progress)
     with log.stage("turntable"):
@@ -109,49 +106,29 @@ def _baseline(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) 
             "seen": seen, "avatar_dir": avatar_dir, "avatar": avatar, "anims": anims}
 
 
-def _augment_stage(cfg: DemoConfig, out: Path, run_dir: Path, avatar_dir: Path, log: StageLog,
-                   progress: bool) -> dict:
-    """Triplets of the trained avatar -> Refiner (warp+geo) and Examiner on the subject's training frames
-    -> ONNX (fp32 + int8, parity-checked) -> augment the first training frames with the runtime."""
-    from trioman.export.onnx_models import export_onnx
+def _augment_stage(cfg: DemoConfig, out: Path, avatar_dir: Path, log: StageLog, progress: bool) -> dict:
+    """Pseudo-GT frames of the first training frames by the torch-free runtime, with the shipped Refiner and
+    Examiner (runtime/pretrained.py)."""
     from trioman.runtime.augment import augment
-    from trioman.runtime.outputs import remove_own
-    from trioman.toolkit.model_training import MODEL_RUN, FitConfig, fit_examiner, fit_refiner
-    from trioman.toolkit.triplets import build_triplets
+    from trioman.runtime.pretrained import SHIPPED
 
-    with log.stage("triplets"):
-        triplets = build_triplets(run_dir, out / "triplets.npz", progress=progress)
-    for name in ("refiner", "examiner"):  # fresh models, like the fresh avatar run
-        remove_own(out / "models" / name, MODEL_RUN)
-    steps = cfg.model_steps
-    with log.stage("refiner"):
-        _, refiner = fit_refiner([triplets], out / "models" / "refiner", "warp+geo", FitConfig(steps=steps, split="train"))
-    with log.stage("examiner"):
-        _, examiner = fit_examiner([triplets], out / "models" / "examiner",
-                                   fit=FitConfig(steps=steps, lr=3e-4, crop=None, image_size=min(cfg.size, 128),
-                                                 split="train"),
-                                   validation_subjects=0)  # one subject: nothing to validate on
-    onnx = out / "onnx"
-    with log.stage("onnx export"):
-        report = export_onnx(refiner=refiner["checkpoint"], examiner=examiner["checkpoint"], out=onnx,
-                             variants=("fp32", "int8"), calibration=[triplets], size=cfg.size, overwrite=True,
-                             calibration_frames=EXPORT_FRAMES, gate_frames=EXPORT_FRAMES)
     with log.stage("augment"):
-        result = augment(out / "subject", avatar_dir, onnx / "refiner.onnx", out / "augmented",
-                         examiner=onnx / "examiner.onnx", limit=cfg.augment_frames, overwrite=True, progress=progress)
-    return {"onnx": onnx, "export": report, "out": out / "augmented", "result": result}
+        result = augment(out / "subject", avatar_dir, SHIPPED, out / "augmented", SHIPPED, limit=cfg.augment_frames,
+                         overwrite=True, progress=progress)
+    return {"out": out / "augmented", "result": result}
 
 
 def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
-    """An avatar trained with online aligned augmentation (``--augment aligned``), evaluated on the test split."""
+    """An avatar trained like the baseline with `--augment` (the shipped models, the measured schedule), evaluated on
+    the test split."""
     from trioman.runtime.outputs import remove_own
     from trioman.toolkit.evaluate import evaluate
-    from trioman.toolkit.train.augmentation import AugmentConfig
+    from trioman.toolkit.train.augment_config import BEST, AugmentConfig
     from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     run_aug = out / "run_augmented"
     remove_own(run_aug, RUN_FOLDER)
-    train_cfg = _quick_preset(cfg, augment=AugmentConfig(mode="aligned"))
+    train_cfg = _quick_preset(cfg, augment=AugmentConfig(mode=BEST))
     with log.stage("train augmented"):
         train(out / "subject", run_aug, train_cfg, progress=progress, lpips=lpips)
     with log.stage("eval augmented"):
@@ -161,8 +138,6 @@ def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress
 
 def _report(base: dict, aug: dict, final: dict) -> None:
     """Where the outputs are, and the test PSNR of both avatars."""
-    from trioman.export.onnx_models import summary_lines
-
     subject, run_dir, train_cfg = base["subject"], base["run"], base["train_cfg"]
     say(f"subject       {subject.root} ({subject.num_frames} frames), contact sheet {subject.root / 'contact_sheet.png'}")
     say(f"turntable     {base['turntable']}")
@@ -175,15 +150,12 @@ def _report(base: dict, aug: dict, final: dict) -> None:
     say(f"avatar        {base['avatar_dir']} ({base['avatar'].num_gaussians} Gaussians; canonical.ply opens in splat viewers)")
     for r in base["anims"].values():
         say(f"animation     {r['video']} ({r['frames']} frames, {r['ms_per_frame']:.0f} ms/frame with the numpy runtime)")
-    say(f"ONNX models   {aug['onnx']} (report {aug['onnx'] / 'export.json'}):")
-    for line in summary_lines(aug["export"]):
-        say(f"  {line}")
     s, t = aug["result"]["summary"], aug["result"]["timing"]["ms_per_source_frame"]
-    say(f"pseudo-GT     {aug['out']} ({s['accepted']} frames kept of {s['candidates']} candidates from "
-        f"{s['source_frames']} source frames, {t['total']:.0f} ms per source frame; report {aug['out'] / 'augment.json'}, "
-        f"scores {aug['out'] / 'scores.png'})")
+    say(f"pseudo-GT     {aug['out']} (trioman augment with the shipped Refiner and Examiner: {s['accepted']} frames "
+        f"kept of {s['candidates']} candidates from {s['source_frames']} source frames, {t['total']:.0f} ms per source "
+        f"frame; report {aug['out'] / 'augment.json'}, scores {aug['out'] / 'scores.png'})")
     before, after = base["test"]["mean"]["psnr"], final["test"]["mean"]["psnr"]
-    say(f"augmented run {final['run']} (trioman train {subject.root} --augment aligned)")
+    say(f"augmented run {final['run']} (trioman train {subject.root} --augment: the shipped Refiner and Examiner)")
     say(f"test PSNR (masked): baseline {before:.2f} dB, augmented {after:.2f} dB ({after - before:+.2f} dB, the same "
         f"{train_cfg.iterations} steps); report {final['run'] / 'eval_test' / 'report.md'}")
     say(f"novel views   {final['grid']} (test motions from views the capture did not see: GT | baseline | augmented)")

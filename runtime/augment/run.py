@@ -26,6 +26,7 @@ from trioman.runtime.formats import load_avatar, load_subject
 from trioman.runtime.formats.subject import IMAGES_DIR, MASKS_DIR, SUBJECT_JSON, WEIGHTS_DIR
 from trioman.runtime.generator import GeneratorConfig, joint_groups
 from trioman.runtime.outputs import atomic_write_text, check_not_input, is_temp_name, process_lock, remove_temp_files
+from trioman.runtime.pretrained import SHIPPED, resolve_model
 from trioman.runtime.pseudo_gt import MASKS, PseudoConfig
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
 
@@ -35,7 +36,7 @@ def augment(
     avatar: str | os.PathLike,
     refiner: str | os.PathLike | None,
     out: str | os.PathLike,
-    examiner: str | os.PathLike | None = None,
+    examiner: str | os.PathLike | None = SHIPPED,
     *,
     per_frame: int = AugmentOptions.per_frame,
     threshold: float | None = AugmentOptions.threshold,
@@ -54,8 +55,9 @@ def augment(
     texture: int = AugmentOptions.texture,
 ) -> dict[str, Any]:
     """Write pseudo-GT frames of ``subject`` (folder) made with ``avatar`` (folder), the Refiner and the
-    optional Examiner (ONNX files) into the folder ``out`` (package doc). -> the augment.json content.
-    Without a Refiner (``refiner=None``) the frames are the aligned kind (runtime/pseudo_gt.py): the render
+    optional Examiner (ONNX files; ``"shipped"``: the package's, runtime/pretrained.py; ``"none"``: none) into the
+    folder ``out`` (package doc). -> the augment.json content.
+    Without a Refiner (``refiner`` None or "none") the frames are the aligned kind (runtime/pseudo_gt.py): the render
     with real pixels carried through the body mesh, with per-pixel loss weights in ``out/weights``.
 
     frames: source frames, "train" (the train split) or "all"; limit: the first ``limit`` of them.
@@ -79,6 +81,9 @@ def augment(
     gen_cfg = generator if generator is not None else GeneratorConfig()
     if not isinstance(gen_cfg, GeneratorConfig):
         raise ValueError(f"generator: expected a GeneratorConfig, got {type(gen_cfg).__name__}")
+    refiner = resolve_model(refiner, "refiner")
+    # the shipped Examiner goes with a Refiner: without one (none) the default Examiner has nothing to choose from
+    examiner = None if refiner is None and str(examiner) == SHIPPED else resolve_model(examiner, "examiner")
     subject_path = existing(subject, "subject", "subject folder")
     avatar_path = existing(avatar, "avatar", "avatar folder")
     refiner_path = None if refiner is None else existing(refiner, "refiner", "Refiner ONNX file")

@@ -13,16 +13,18 @@ from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_avatar, load_subject  # noqa: E402
 from trioman.runtime.image_io import read_png  # noqa: E402
 
-STAGES = ("synth", "turntable", "train", "eval test", "eval train", "export avatar", "animate", "triplets", "refiner",
-          "examiner", "onnx export", "augment", "train augmented", "eval augmented", "novel views")
+STAGES = ("synth", "turntable", "train", "eval test", "eval train", "export avatar", "animate", "augment",
+          "train augmented", "eval augmented", "novel views")
 STAGE_LINE = re.compile(r"^demo: stage (.+?) +(\d+\.\d) s +peak RSS +(\d+) MiB(?: \(since start\))?$", re.M)
 PSNR_LINE = re.compile(r"^demo: test PSNR \(masked\): baseline (\S+) dB, augmented (\S+) dB \(\S+ dB, the same (\d+) "
                        r"steps\); report (\S+)$", re.M)
 
 
-def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
+def test_demo_runs_export_augment_and_the_augmented_avatar_with_the_shipped_models(tmp_path, capsys):
+    from trioman.runtime.pretrained import shipped_path
+
     out = tmp_path / "demo"
-    argv = ["demo", "--out", str(out), "--size", "64", "--frames", "12", "--iterations", "30", "--model-steps", "5",
+    argv = ["demo", "--out", str(out), "--size", "64", "--frames", "12", "--iterations", "30",
             "--augment-frames", "2", "--quiet"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
@@ -32,17 +34,20 @@ def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
     overall = re.search(r"^demo: done in \d+ s; peak RSS (\d+) MiB", printed, re.M)
     assert overall and int(overall.group(1)) == max(int(mib) for _, _, mib in stages)
 
-    assert f"pseudo-GT     {out / 'augmented'}" in printed and str(out / "onnx" / "export.json") in printed
+    assert f"pseudo-GT     {out / 'augmented'}" in printed
     load_avatar(out / "avatar")
-    assert (out / "onnx" / "refiner.onnx").is_file() and (out / "onnx" / "examiner.onnx").is_file()
     result = json.loads((out / "augmented" / "augment.json").read_text())
+    assert result["settings"]["refiner"]["path"] == str(shipped_path("refiner"))
+    assert result["settings"]["examiner"]["path"] == str(shipped_path("examiner"))
     assert result["summary"]["source_frames"] == 2 and result["summary"]["accepted"] == 2
     assert load_subject(out / "augmented").num_frames == 2
     assert (out / "animate_walk.mp4").stat().st_size > 0
 
     run_aug = out / "run_augmented"
     train_cfg = json.loads((run_aug / "config.json").read_text())["train"]
-    assert train_cfg["augment"]["mode"] == "aligned" and train_cfg["iterations"] == 30
+    assert train_cfg["augment"]["mode"] == "examined" and train_cfg["iterations"] == 30
+    assert (train_cfg["augment"]["refiner"], train_cfg["augment"]["examiner"]) == (str(shipped_path("refiner")),
+                                                                                   str(shipped_path("examiner")))
     psnr = PSNR_LINE.search(printed)
     assert psnr and psnr.group(4) == str(run_aug / "eval_test" / "report.md") and psnr.group(3) == "30"
     baseline, augmented = float(psnr.group(1)), float(psnr.group(2))
@@ -57,11 +62,9 @@ def test_demo_runs_export_augment_and_the_augmented_avatar(tmp_path, capsys):
 
     # issue 41: a rerun starts its runs afresh, removing the demo's own and nothing else
     from trioman.runtime.outputs import check_folder_target
-    from trioman.toolkit.model_training import MODEL_RUN
     from trioman.toolkit.train.loop import RUN_FOLDER
 
-    for folder, kind in (("run", RUN_FOLDER), ("run_augmented", RUN_FOLDER), ("models/refiner", MODEL_RUN),
-                         ("models/examiner", MODEL_RUN)):
+    for folder, kind in (("run", RUN_FOLDER), ("run_augmented", RUN_FOLDER)):
         check_folder_target(out / folder, True, kind)  # what a rerun removes: the demo's own output, whole
     (out / "run" / "notes.txt").write_text("mine")
     capsys.readouterr()

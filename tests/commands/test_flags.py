@@ -61,8 +61,8 @@ def test_every_flag_a_command_shows_is_one_of_its_own():
      "trioman animate: error: --azimuth: must be a finite number of degrees, got nan"),
     (["render", "A", "--out", "x.png", "--background", "red"],
      "trioman render: error: --background: expected r,g,b numbers in [0, 1], got 'red'"),
-    (["train", "S", "--out", "O", "--augment", "refined"],
-     "trioman train: error: --refiner: --augment refined needs a Refiner (a run folder, checkpoint or .onnx)"),
+    (["train", "S", "--out", "O", "--augment", "--refiner", "none", "--examiner", "shipped"],
+     "trioman train: error: --examiner: chooses among refined candidates; --refiner none gives the aligned kind"),
     (["train", "S", "--out", "O", "--augment", "aligned", "--threshold", "0.5"],
      "trioman train: error: --threshold: needs --augment examined"),
     (["train", "S", "--out", "O", "--augment", "--augment-start", "1"],
@@ -99,8 +99,8 @@ def test_the_training_library_names_fields():
     from trioman.toolkit.distributed import check_device
     from trioman.toolkit.train.augmentation import AugmentConfig
 
-    with pytest.raises(ValueError, match=r"^refiner: `mode` refined needs a Refiner \(a run folder, checkpoint or \.onnx\)$"):
-        AugmentConfig(mode="refined")
+    with pytest.raises(ValueError, match=r"^examiner: `mode` refined does not use an Examiner"):
+        AugmentConfig(mode="refined", refiner="r", examiner="e")
     with pytest.raises(ValueError, match=r"^threshold: needs `mode` examined"):
         AugmentConfig(mode="aligned", threshold=0.5)
     with pytest.raises(ValueError, match=r"^device: expected one of"):

@@ -142,7 +142,7 @@ def test_without_an_examiner_every_candidate_is_kept(inputs, tmp_path):
 
 
 def test_a_refiner_without_conditions_gets_neither_reference_nor_normal_map(inputs, tmp_path):
-    r = augment(inputs.subject, inputs.avatar, inputs.refiner_none, tmp_path / "n", limit=1, progress=False)
+    r = augment(inputs.subject, inputs.avatar, inputs.refiner_none, tmp_path / "n", None, limit=1, progress=False)
     assert r["settings"]["refiner"]["conditions"] == "none" and r["timing"]["ms_per_source_frame"]["normal"] < 1.0
     assert load_subject(tmp_path / "n").num_frames == 2
 
@@ -150,10 +150,10 @@ def test_a_refiner_without_conditions_gets_neither_reference_nor_normal_map(inpu
 def test_a_warp_refiner_refines_the_aligned_reference(inputs, tmp_path):
     """A warp+geo Refiner ONNX in the runtime: the aligned reference is built for it (even with the render's alpha as
     the mask), and its frames differ from the same draws refined by a tex+geo Refiner."""
-    r = augment(inputs.subject, inputs.avatar, inputs.refiner_warp, tmp_path / "w", limit=1, progress=False, mask="alpha")
+    r = augment(inputs.subject, inputs.avatar, inputs.refiner_warp, tmp_path / "w", None, limit=1, progress=False, mask="alpha")
     assert r["settings"]["refiner"]["conditions"] == "warp+geo" and r["timing"]["ms_per_source_frame"]["align"] > 0
     assert all(0 < c["body_coverage"] <= 1 for rec in records(tmp_path / "w") for c in rec["candidates"])
-    augment(inputs.subject, inputs.avatar, inputs.refiner, tmp_path / "t", limit=1, progress=False, mask="alpha")
+    augment(inputs.subject, inputs.avatar, inputs.refiner, tmp_path / "t", None, limit=1, progress=False, mask="alpha")
     warp, tex = load_subject(tmp_path / "w"), load_subject(tmp_path / "t")
     assert warp.num_frames == tex.num_frames == 2 and not np.array_equal(warp.image(0), tex.image(0))
 

@@ -12,11 +12,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from trioman.runtime.options import check_options, integer, number, option
+from trioman.runtime.pretrained import NONE, SHIPPED
 from trioman.runtime.pseudo_kinds import KINDS, MASKS
 
 MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_kinds.py)
 WITH_REFINER = ("refined", "examined")
-ALONE = "aligned"  # what `--augment` alone runs: the best kind measured that needs no model
+BEST = "examined"  # what `--augment` alone runs: the best kind measured, with the shipped models (docs/models.md)
+ALONE = "aligned"  # the best kind measured that needs no model (`--refiner none`)
 
 
 def _texture(value: Any) -> str | None:
@@ -26,8 +28,8 @@ def _texture(value: Any) -> str | None:
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    mode: str = option("coarse", flag="--augment", choices=MODES, const=ALONE, default_text="off; --augment "
-                       "alone: aligned, the best kind without a model",
+    mode: str = option("coarse", flag="--augment", choices=MODES, const=BEST, default_text="off; --augment "
+                       "alone: examined, with the shipped Refiner and Examiner (docs/models.md)",
                        help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
                             "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
                             "refined by --refiner (refined), the best of --per-frame refined candidates by --examiner "
@@ -44,9 +46,11 @@ class AugmentConfig:
                                 help="take the aligned reference's colour from a texture of this side fused from every "
                                      "training frame wherever its texels were seen (runtime/texture_fusion.py; 0: "
                                      "carried pixels only)")
-    refiner: str | None = option(None, metavar="RUN|CKPT|ONNX", help="Refiner: train-refiner run, checkpoint or .onnx")
-    examiner: str | None = option(None, metavar="RUN|CKPT|ONNX",
-                                  help="Examiner: train-examiner run, checkpoint or .onnx")
+    refiner: str | None = option(None, metavar="RUN|CKPT|ONNX|none", default_text="the shipped one",
+                                 help="Refiner: train-refiner run, checkpoint or .onnx; none: no model, the aligned kind")
+    examiner: str | None = option(None, metavar="RUN|CKPT|ONNX|none", default_text="the shipped one",
+                                  help="Examiner: train-examiner run, checkpoint or .onnx; none: every candidate kept "
+                                       "(the refined kind)")
     per_frame: int | None = option(None, check=integer(1), default_text="2 with an Examiner, else 1",
                                    help="Generator candidates per source frame")
     threshold: float | None = option(None, check=number(0, 1),
@@ -73,6 +77,7 @@ class AugmentConfig:
 
     def __post_init__(self) -> None:
         check_options(self)
+        self._resolve_models()
         needs_refiner = self.mode in WITH_REFINER
         if self.keep_carried is None:  # the default: on wherever there is a Refiner to fill the rest
             object.__setattr__(self, "keep_carried", needs_refiner)
@@ -97,6 +102,35 @@ class AugmentConfig:
                              "(use `mode` aligned, refined or examined)")
         self.pseudo()  # validates the mask and weights
         self.generator()  # validates the sigmas
+
+    def _resolve_models(self) -> None:
+        """``none`` and the shipped models: a kind that needs a Refiner without ``refiner`` gets the shipped one
+        (``examined`` the shipped Examiner too); ``refiner`` none turns it into the aligned kind, ``examiner`` none
+        ``examined`` into ``refined``. The fields then hold paths (the run records which file it used)."""
+        from trioman.runtime.pretrained import resolve_model
+
+        def set_(name: str, value: Any) -> None:  # a frozen dataclass
+            object.__setattr__(self, name, value)
+
+        if self.mode not in WITH_REFINER:
+            for name in ("refiner", "examiner"):
+                if getattr(self, name) == NONE:
+                    set_(name, None)
+            return
+        if self.refiner == NONE:
+            if self.examiner not in (None, NONE):
+                raise ValueError("examiner: chooses among refined candidates; `refiner` none gives the aligned kind")
+            set_("mode", ALONE)
+            set_("refiner", None)
+            set_("examiner", None)
+            return
+        if self.examiner == NONE:
+            set_("mode", "refined")
+            set_("examiner", None)
+        if self.refiner in (None, SHIPPED):
+            set_("refiner", str(resolve_model(SHIPPED, "refiner")))
+        if self.mode == "examined" and self.examiner in (None, SHIPPED):
+            set_("examiner", str(resolve_model(SHIPPED, "examiner")))
 
     @property
     def candidates(self) -> int:

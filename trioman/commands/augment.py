@@ -1,8 +1,9 @@
-"""``trioman augment SUBJECT --avatar A [--refiner R.onnx [--examiner E.onnx]] --out DIR``: pseudo-GT frames, no torch.
+"""``trioman augment SUBJECT --avatar A [--refiner R.onnx|none [--examiner E.onnx|none]] --out DIR``: pseudo-GT
+frames, no torch.
 
 Generator -> coarse render -> aligned reference -> body normal map -> Refiner -> Examiner (keep the better of
-the candidates, drop it below --threshold), per source frame; without --refiner the aligned pseudo-GT (no
-model); see trioman.runtime.augment and
+the candidates, drop it below --threshold), per source frame; the models default to the shipped ones
+(runtime/pretrained.py); with --refiner none the aligned pseudo-GT (no model); see trioman.runtime.augment and
 docs/formats.md "Augmented frames". Train on the result with ``trioman train SUBJECT --extra-frames DIR``.
 
 ``--shard I/N`` does only shard I of N's source frames (in DIR/shards/I-of-N; N jobs on one machine or
@@ -37,15 +38,17 @@ def flags() -> dict[str, str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from trioman.options import add_options
+    from trioman.runtime.pretrained import SHIPPED
 
     parser.add_argument("subject", metavar="SUBJECT", help="subject folder (docs/formats.md)")
     parser.add_argument("--avatar", required=True, help="avatar folder of this subject (trioman export avatar)")
-    parser.add_argument("--refiner", default=None,
-                        help="Refiner ONNX file, exported at the subject's image size (without one: the aligned "
-                             "pseudo-GT, the render with real pixels carried through the body mesh, and per-pixel "
-                             "loss weights in DIR/weights; no model needed)")
-    parser.add_argument("--examiner", default=None,
-                        help="Examiner ONNX file; without it every candidate is kept (one frame per candidate)")
+    parser.add_argument("--refiner", default=SHIPPED, metavar="ONNX|shipped|none",
+                        help="Refiner ONNX file; shipped: the package's (docs/models.md); none: the aligned pseudo-GT, "
+                             "the render with real pixels carried through the body mesh, and per-pixel loss weights "
+                             "in DIR/weights (no model) (default shipped)")
+    parser.add_argument("--examiner", default=SHIPPED, metavar="ONNX|shipped|none",
+                        help="Examiner ONNX file; shipped: the package's (with a Refiner); none: every candidate is "
+                             "kept (one frame per candidate) (default shipped)")
     parser.add_argument("--out", required=True, help="output folder: a subject of pseudo-GT frames + records")
     add_options(parser, *_configs())
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out (skips finished frames)")
@@ -76,8 +79,9 @@ def run(args: argparse.Namespace) -> int:
         return 0
     s, t = r["summary"], r["timing"]
     thr = "" if cfg.threshold is None else f" (threshold {cfg.threshold:g})"
-    if args.examiner is None:
-        how = "no --examiner" if args.refiner else "no --refiner: aligned pseudo-GT with per-pixel weights"
+    settings = r["settings"]
+    if settings["examiner"] is None:
+        how = "no --examiner" if settings["refiner"] else "no --refiner: aligned pseudo-GT with per-pixel weights"
         print(f"augment: {s['source_frames']} source frames, {s['candidates']} candidates, all kept ({how})")
     else:
         sc = s["chosen_scores"]

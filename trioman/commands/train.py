@@ -77,6 +77,7 @@ def augment_config(args: argparse.Namespace):
     from pathlib import Path
 
     from trioman.options import given
+    from trioman.runtime.pretrained import NONE, SHIPPED
     from trioman.toolkit.train.augment_config import AugmentConfig
 
     values = given(AugmentConfig, args)
@@ -85,7 +86,7 @@ def augment_config(args: argparse.Namespace):
             raise ValueError(f"{next(iter(values))}: needs `mode`")
         return None
     for key in ("refiner", "examiner"):
-        if key in values:
+        if key in values and values[key] not in (NONE, SHIPPED):
             if not Path(values[key]).exists():
                 raise FileNotFoundError(f"{key}: not found: {values[key]}")
             values[key] = str(Path(values[key]).resolve())

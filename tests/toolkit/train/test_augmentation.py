@@ -123,11 +123,35 @@ def test_examiner_threshold_drops_candidates_and_training_goes_on(subject, model
     assert np.all(np.isfinite(losses(run)))
 
 
-def test_config_errors_name_the_option():
-    with pytest.raises(ValueError, match="^refiner: `mode` refined needs a Refiner"):
+def test_the_shipped_models_are_the_default_and_none_turns_them_off():
+    from trioman.runtime.pretrained import shipped_path
+
+    refiner, examiner = str(shipped_path("refiner")), str(shipped_path("examiner"))
+    cfg = AugmentConfig(mode="examined")
+    assert (cfg.mode, cfg.refiner, cfg.examiner, cfg.keep_carried, cfg.candidates) == ("examined", refiner, examiner, True, 2)
+    assert (AugmentConfig(mode="refined").refiner, AugmentConfig(mode="refined").examiner) == (refiner, None)
+    assert AugmentConfig(mode="examined", refiner="r").examiner == examiner
+    cfg = AugmentConfig(mode="examined", examiner="none")
+    assert (cfg.mode, cfg.refiner, cfg.examiner) == ("refined", refiner, None)
+    cfg = AugmentConfig(mode="examined", refiner="none")
+    assert (cfg.mode, cfg.refiner, cfg.examiner, cfg.keep_carried) == ("aligned", None, None, False)
+    assert AugmentConfig(mode="aligned", refiner="none").refiner is None
+    with pytest.raises(ValueError, match="^examiner: chooses among refined candidates; `refiner` none"):
+        AugmentConfig(mode="examined", refiner="none", examiner="e")
+
+
+def test_without_shipped_models_a_refiner_must_be_given(tmp_path, monkeypatch):
+    from trioman.runtime import pretrained
+
+    monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path)
+    with pytest.raises(ValueError, match="^refiner: the shipped refiner: .*models.json: missing file"):
         AugmentConfig(mode="refined")
-    with pytest.raises(ValueError, match="^examiner: `mode` examined needs an Examiner"):
+    with pytest.raises(ValueError, match="^examiner: the shipped examiner: .*models.json: missing file"):
         AugmentConfig(mode="examined", refiner="r")
+    assert AugmentConfig(mode="examined", refiner="r", examiner="e").examiner == "e"
+
+
+def test_config_errors_name_the_option():
     with pytest.raises(ValueError, match="per_frame: 2 candidates need an Examiner"):
         AugmentConfig(mode="coarse", per_frame=2)
     with pytest.raises(ValueError, match="^share: must lie in \\(0, 1\\]"):
@@ -246,21 +270,26 @@ def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, 
 def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys):
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--refiner", "r.pt"]) == 1
     assert "--refiner: needs --augment" in capsys.readouterr().err
-    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined"]) == 1
-    assert "error: --refiner: --augment refined needs a Refiner" in capsys.readouterr().err
+    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "--refiner", "none", "--examiner",
+                 "shipped"]) == 1
+    assert "error: --examiner: chooses among refined candidates; --refiner none gives the aligned kind" in capsys.readouterr().err
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined", "--refiner",
                  str(tmp_path / "nope.pt")]) == 1
     assert "--refiner: not found" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()  # nothing written before the inputs are checked
 
 
-def test_augment_alone_means_aligned_with_the_carried_mask(subject, tmp_path):
+def test_augment_alone_means_the_shipped_models_with_the_carried_mask(subject, tmp_path):
     from trioman.commands.train import augment_config
     from trioman.cli import build_parser
+    from trioman.runtime.pretrained import shipped_path
 
     args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment"])
     cfg = augment_config(args)
-    assert (cfg.mode, cfg.mask, cfg.unknown_weight, cfg.align_sources) == ("aligned", "carried", 0.0, 3)
+    assert (cfg.mode, cfg.mask, cfg.unknown_weight, cfg.align_sources) == ("examined", "carried", 0.0, 3)
+    assert (cfg.refiner, cfg.examiner) == (str(shipped_path("refiner")), str(shipped_path("examiner")))
+    args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "--refiner", "none"])
+    assert (augment_config(args).mode, augment_config(args).refiner) == ("aligned", None)
     args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "coarse",
                                       "--augment-mask", "alpha", "--augment-sources", "1"])
     assert (augment_config(args).mask, augment_config(args).align_sources) == ("alpha", 1)
@@ -281,6 +310,7 @@ def test_a_refiner_keeps_the_carried_pixels_unless_told_not_to(subject, tmp_path
     assert augment_config(build_parser().parse_args(base + ["--augment", "refined", "--refiner", str(ref)])).keep_carried
     assert not augment_config(build_parser().parse_args(
         base + ["--augment", "refined", "--refiner", str(ref), "--no-augment-keep-carried"])).keep_carried
-    assert not augment_config(build_parser().parse_args(base + ["--augment"])).keep_carried
+    assert augment_config(build_parser().parse_args(base + ["--augment"])).keep_carried
+    assert not augment_config(build_parser().parse_args(base + ["--augment", "--refiner", "none"])).keep_carried
     with pytest.raises(ValueError, match="^keep_carried: needs a Refiner"):
         augment_config(build_parser().parse_args(base + ["--augment", "aligned", "--augment-keep-carried"]))
