@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import run_python
-from tests.runtime.factories import block_means, block_refiner
+from tests.runtime.factories import block_means, block_refiner, fixed_size_copy
 from trioman.runtime.formats import FormatError
 from trioman.runtime.onnx_models import (
     Choice,
@@ -29,7 +29,8 @@ S = 32
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory):
-    """refiner.onnx (tex+geo), refiner_none.onnx (conditions "none") and examiner.onnx, all 32x32."""
+    """refiner.onnx (tex+geo), refiner_none.onnx (conditions "none") and examiner.onnx, all exported at 32x32;
+    refiner_fixed.onnx: refiner.onnx as an older export has it (32x32 only)."""
     torch = pytest.importorskip("torch")
     pytest.importorskip("onnx")
     from trioman.export.onnx_models import export_examiner_onnx, export_refiner_onnx
@@ -47,6 +48,7 @@ def models(tmp_path_factory):
                 if not p.any():
                     p.copy_(0.05 * torch.randn(p.shape, generator=g))
         export_refiner_onnx(model, root / name, gate_frames=4, calibration_frames=4)
+    fixed_size_copy(root / "refiner.onnx", root / "refiner_fixed.onnx")
     torch.manual_seed(0)
     examiner = create_examiner(ExaminerConfig(img_size=S, patch_size=8, embed_dim=32, depth=1, num_heads=2, dual_dims=(16, 8),
                                               dual_heads=2, head_hidden=16))
@@ -87,6 +89,7 @@ def edited(src: Path, dst: Path, **changes: str | None) -> Path:
 def test_refiner_refine_shapes_and_single_vs_batch(models):
     m = RefinerModel(models / "refiner.onnx")
     assert m.size == (S, S) and m.conditions == "tex+geo" and m.input_names == ("coarse", "reference", "normal")
+    assert m.multiple == 8 and m.meta["trioman.size_multiple"] == "8"  # the tiny model's total downsampling
     assert m.precision == "fp32" and m.meta["trioman.kind"] == "refiner"
     c, r, n = images(3, seed=1), images(3, seed=2), images(3, seed=3)
     batch = m.refine(c, r, n)
@@ -127,16 +130,48 @@ def test_refiner_inputs_errors(models):
     c = images(1)[0]
     with pytest.raises(ValueError, match=r"^normal: required by this Refiner \(conditions='tex\+geo'\)"):
         m.refine(c, c, None)
-    with pytest.raises(ValueError, match=r"reference: image size \(H, W\) = \(16, 16\) differs from the model's \(32, 32\)"):
+    with pytest.raises(ValueError, match=r"^reference: image size \(H, W\) = \(16, 16\) differs from coarse's \(32, 32\)"):
         m.refine(c, images(1, 16)[0], c)
+    with pytest.raises(ValueError, match=r"^normal: image size \(H, W\) = \(16, 16\) differs from coarse's \(32, 32\)"):
+        m.run(*(images(1).transpose(0, 3, 1, 2) for _ in range(2)), images(1, 16).transpose(0, 3, 1, 2))
     with pytest.raises(ValueError, match="coarse: expected float images in \\[0, 1\\], got dtype uint8"):
         m.refine((c * 255).astype(np.uint8), c, c)
     with pytest.raises(ValueError, match=r"coarse: expected an image \[H, W, 3\]"):
         m.refine(c[..., :2], c, c)
     with pytest.raises(ValueError, match="batch sizes differ"):
         m.refine(images(2), images(3), images(2))
-    with pytest.raises(ValueError, match=r"coarse: image size \(H, W\) = \(16, 16\)"):
+    with pytest.raises(ValueError, match=r"^reference: required by this Refiner"):
         m.run(images(1, 16).transpose(0, 3, 1, 2), None, None)
+
+
+def test_an_older_fixed_size_export_loads_and_refuses_other_sizes(models):
+    """A file without trioman.size_multiple (exported before it) keeps its one size, with the errors it always had."""
+    m = RefinerModel(models / "refiner_fixed.onnx")
+    assert m.size == (S, S) and m.multiple is None and "multiple" not in repr(m)
+    assert m.takes(S, S) and not m.takes(S, 2 * S) and not m.takes(24, 40)
+    c, r, n = images(2, seed=1), images(2, seed=2), images(2, seed=3)
+    np.testing.assert_allclose(m.refine(c, r, n), RefinerModel(models / "refiner.onnx").refine(c, r, n), atol=1e-6)
+    with pytest.raises(ValueError, match=r"^reference: image size \(H, W\) = \(16, 16\) differs from the model's \(32, 32\) "
+                                         r"\(this Refiner was exported for 32x32 images\)"):
+        m.refine(c[0], images(1, 16)[0], c[0])
+    with pytest.raises(ValueError, match=r"^coarse: image size \(H, W\) = \(24, 24\) differs from the model's \(32, 32\)"):
+        m.refine(images(1, 24), images(1, 24), images(1, 24))
+    with pytest.raises(ValueError, match=r"^coarse: image size \(H, W\) = \(16, 16\) differs from the model's \(32, 32\)"):
+        m.run(*(images(1, 16).transpose(0, 3, 1, 2) for _ in range(3)))
+
+
+def test_an_exported_refiner_takes_other_sizes_padded_to_its_multiple(models):
+    """The exported graph at other sizes: a multiple of 8 as it is, a size that is not padded (edge) and cropped."""
+    m = RefinerModel(models / "refiner.onnx")
+    for H, W in ((24, 48), (30, 45)):
+        c, r, n = (np.random.default_rng(i).random((2, H, W, 3), dtype=np.float32) for i in range(3))
+        assert m.takes(H, W)
+        out = m.refine(c, r, n)
+        assert out.shape == (2, H, W, 3) and np.abs(out - c).max() > 1e-3
+        raw = m.run(*(x.transpose(0, 3, 1, 2) for x in (c, r, n)))
+        assert raw.shape == (2, 3, 3, H, W) and raw.flags.c_contiguous
+        padded = m.run(*(pad_to_multiple(x, 8).transpose(0, 3, 1, 2) for x in (c, r, n)))  # the graph on the padded images
+        np.testing.assert_allclose(raw, crop_to(padded, (H, W), (-2, -1)), atol=1e-6)
 
 
 def test_refiner_ignores_inputs_its_conditions_do_not_use(models):
@@ -336,6 +371,8 @@ def test_runtime_models_work_where_torch_cannot_be_imported(models):
         r = load_model({str(models / 'refiner.onnx')!r})
         x = np.random.default_rng(0).random((2, {S}, {S}, 3), dtype=np.float32)
         assert r.refine(x, x, x).shape == x.shape
+        y = np.random.default_rng(1).random((1, 30, 45, 3), dtype=np.float32)  # not a multiple of its 8: padded
+        assert r.refine(y, y, y).shape == y.shape
         e = ExaminerModel({str(models / 'examiner.onnx')!r})
         c = e.choose(x, x[0], threshold=0.5)
         assert c.scores.shape == (2,) and e.score(x[0], x[1]).shape == (1,)

@@ -246,6 +246,7 @@ def _nchw(x: np.ndarray) -> torch.Tensor:
 
 def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, tmp_path):
     pytest.importorskip("onnx")
+    from tests.runtime.factories import fixed_size_copy
     from trioman.export.onnx_models import export_examiner_onnx, export_refiner_onnx
 
     export_refiner_onnx(models["refiner"], tmp_path / "r.onnx", size=SIZE)
@@ -254,13 +255,19 @@ def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, 
     torch_e, onnx_e = load_pseudo_examiner(models["examiner"]), load_pseudo_examiner(tmp_path / "e.onnx")
     rng = np.random.default_rng(0)
     coarse, ref, normal = (rng.random((2, SIZE, SIZE, 3), dtype=np.float32) for _ in range(3))
-    np.testing.assert_allclose(onnx_r.refine(coarse, ref, normal), torch_r.refine(coarse, ref, normal), atol=1e-3)
     np.testing.assert_allclose(onnx_e.score(coarse, ref[0]), torch_e.score(coarse, ref[0]), atol=1e-4)
-    with pytest.raises(ValueError, match=r"^refiner: .*r.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
-        onnx_r.check_size(64, 64)
+    # the export size, another multiple of 16, and a size that is not one (both pad it alike)
+    for H, W in ((SIZE, SIZE), (48, 64), (24, 40)):
+        onnx_r.check_size(H, W)
+        coarse, ref, normal = (rng.random((2, H, W, 3), dtype=np.float32) for _ in range(3))
+        np.testing.assert_allclose(onnx_r.refine(coarse, ref, normal), torch_r.refine(coarse, ref, normal), atol=1e-3)
+    old = load_pseudo_refiner(fixed_size_copy(tmp_path / "r.onnx", tmp_path / "old.onnx"))  # an export without the key
+    old.check_size(SIZE, SIZE)
+    with pytest.raises(ValueError, match=r"^refiner: .*old.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
+        old.check_size(64, 64)
 
 
-@pytest.mark.parametrize("kind", ["torch"])
+@pytest.mark.parametrize("kind", ["torch", "onnx"])
 def test_refined_training_at_frames_that_are_not_a_multiple_of_the_refiners(subject, models, tmp_path, kind):
     """image_scale 0.75: 24x24 frames, not a multiple of the Refiner's 16 (nor the ONNX export's size 32)."""
     refiner = models["refiner"]
