@@ -1,5 +1,6 @@
 """The Refiner and the Examiner as ONNX models under onnxruntime (numpy + onnxruntime + OpenCV; no torch, no
-onnx): ``RefinerModel``, ``ExaminerModel``, ``load_model``.
+onnx): ``RefinerModel``, ``ExaminerModel``, ``load_model``; ``pad_to_multiple`` / ``crop_to``, how a Refiner of any
+size takes images whose sides are not multiples of its total downsampling (the torch wrappers use them too).
 
 The files, their required ``trioman.*`` metadata and how the classes use them: docs/formats.md, "ONNX
 models" ("Metadata" and "Using them").
@@ -23,6 +24,9 @@ KINDS = ("refiner", "examiner")
 PRECISIONS = ("fp32", "int8", "fp16")
 # Keys every model needs (without the prefix); the Refiner also needs "conditions".
 REQUIRED_KEYS = ("format", "format_version", "kind", "precision", "input_size", "inputs", "outputs")
+# A Refiner exported with symbolic H and W carries its total downsampling under this key: it takes any image size
+# (sides padded to multiples of it); without the key a model takes "input_size" only.
+SIZE_MULTIPLE_KEY = "size_multiple"
 
 REFINER_INPUTS = ("coarse", "reference", "normal")  # graph inputs in view order (toolkit.refiner.INPUT_NAMES)
 REFINER_OUTPUT = "refined"
@@ -90,6 +94,7 @@ class _Header(NamedTuple):
     size: tuple[int, int]
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
+    multiple: int | None  # trioman.size_multiple: the graph takes H, W multiples of it; None: exactly ``size``
 
 
 def _json_names(meta: dict[str, str], field: str, path: Path) -> tuple[str, ...]:
@@ -127,11 +132,21 @@ def _check_header(meta: dict[str, str], path: Path) -> _Header:
         size = ()
     if len(size) != 2 or min(size) < 1:
         raise FormatError(f"{path}: metadata {_key('input_size')!r}: expected 'H,W' (positive integers), got {raw!r}")
-    return _Header(kind, precision, size, _json_names(meta, "inputs", path), _json_names(meta, "outputs", path))
+    multiple = None
+    if _key(SIZE_MULTIPLE_KEY) in meta:
+        raw = meta[_key(SIZE_MULTIPLE_KEY)]
+        multiple = int(raw) if raw.isdigit() else 0
+        if multiple < 1:
+            raise FormatError(f"{path}: metadata {_key(SIZE_MULTIPLE_KEY)!r}: expected a positive integer, got {raw!r}")
+        if size[0] % multiple or size[1] % multiple:
+            raise FormatError(f"{path}: metadata {_key('input_size')!r} {size[0]},{size[1]} is not a multiple of "
+                              f"{_key(SIZE_MULTIPLE_KEY)!r} {multiple} (stale or mismatched model)")
+    return _Header(kind, precision, size, _json_names(meta, "inputs", path), _json_names(meta, "outputs", path), multiple)
 
 
-def _check_graph(session: Any, header: _Header, path: Path, output_tail: tuple[int, ...]) -> None:
-    """The graph's inputs/outputs against the metadata: names, float32, a symbolic batch, static dims."""
+def _check_graph(session: Any, header: _Header, path: Path, output_tail: tuple[int | None, ...]) -> None:
+    """The graph's inputs/outputs against the metadata: names, float32, a symbolic batch, H and W static at
+    ``input_size`` or, with ``size_multiple``, symbolic; the other dims static. ``None`` in ``output_tail``: H or W."""
     H, W = header.size
     inputs = session.get_inputs()
     names = tuple(i.name for i in inputs)
@@ -142,9 +157,14 @@ def _check_graph(session: Any, header: _Header, path: Path, output_tail: tuple[i
         if i.type != "tensor(float)":
             raise FormatError(f"{path}: graph input {i.name!r}: expected float32, got {i.type}")
         shape = list(i.shape)
-        if len(shape) != 4 or isinstance(shape[0], int) or shape[1:] != [3, H, W]:
+        if header.multiple is None:
+            if len(shape) != 4 or isinstance(shape[0], int) or shape[1:] != [3, H, W]:
+                raise FormatError(f"{path}: graph input {i.name!r}: shape {shape} disagrees with metadata "
+                                  f"{_key('input_size')!r} {H},{W} (expected [batch, 3, {H}, {W}]; stale or mismatched model)")
+        elif len(shape) != 4 or any(isinstance(d, int) for d in (shape[0], *shape[2:])) or shape[1] != 3:
             raise FormatError(f"{path}: graph input {i.name!r}: shape {shape} disagrees with metadata "
-                              f"{_key('input_size')!r} {H},{W} (expected [batch, 3, {H}, {W}]; stale or mismatched model)")
+                              f"{_key(SIZE_MULTIPLE_KEY)!r} (expected [batch, 3, height, width], symbolic height and "
+                              f"width; stale or mismatched model)")
     outputs = session.get_outputs()
     names = tuple(o.name for o in outputs)
     if names != header.outputs:
@@ -156,8 +176,9 @@ def _check_graph(session: Any, header: _Header, path: Path, output_tail: tuple[i
     if len(shape) != 1 + len(output_tail) or isinstance(shape[0], int) or any(
         isinstance(got, int) and got != want for got, want in zip(shape[1:], output_tail)
     ):
+        want = ", ".join("?" if d is None else str(d) for d in output_tail)
         raise FormatError(f"{path}: graph output {names[0]!r}: shape {shape} disagrees with the metadata "
-                          f"(expected [batch{''.join(f', {d}' for d in output_tail)}]; stale or mismatched model)")
+                          f"(expected [batch{', ' if want else ''}{want}]; stale or mismatched model)")
 
 
 class _Opened(NamedTuple):
@@ -199,13 +220,60 @@ def _nchw(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a.transpose(0, 3, 1, 2))
 
 
-def _check_nchw(x: Any, name: str, size: tuple[int, int]) -> np.ndarray:
+def _check_nchw(x: Any, name: str, size: tuple[int, int] | None) -> np.ndarray:
+    """[B, 3, H, W] float32; (H, W) = ``size`` unless it is None."""
     a = _float_images(x, name)
-    if a.ndim != 4 or a.shape[1] != 3 or a.shape[0] < 1:
+    if a.ndim != 4 or a.shape[1] != 3 or a.shape[0] < 1 or a.shape[2] < 1 or a.shape[3] < 1:
         raise ValueError(f"{name}: expected shape [B, 3, H, W], got {list(a.shape)}")
-    if tuple(a.shape[2:]) != size:
+    if size is not None and tuple(a.shape[2:]) != size:
         raise ValueError(f"{name}: image size (H, W) = {tuple(a.shape[2:])} differs from the model's {size}")
     return np.ascontiguousarray(a)
+
+
+def _positive_int(value: Any, name: str) -> int:
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+    return int(value)
+
+
+def padded_size(height: int, width: int, multiple: int) -> tuple[int, int]:
+    """(``height``, ``width``) rounded up to multiples of ``multiple``."""
+    height, width = _positive_int(height, "height"), _positive_int(width, "width")
+    multiple = _positive_int(multiple, "multiple")
+    return -(-height // multiple) * multiple, -(-width // multiple) * multiple
+
+
+def pad_to_multiple(images: np.ndarray, multiple: int, axes: tuple[int, int] = (-3, -2)) -> np.ndarray:
+    """``images`` with its height and width (``axes``; by default those of HWC arrays [..., H, W, C], ``(-2, -1)``
+    for NCHW) padded on the bottom and on the right to the next multiples of ``multiple`` with copies of the last
+    row and column (edge replicate): how a Refiner of any size takes sides that are not multiples of its total
+    downsampling (docs/formats.md, "ONNX models"). ``images`` itself when both sides are multiples already;
+    ``crop_to`` undoes it."""
+    a = np.asarray(images)
+    if a.ndim < 2:
+        raise ValueError(f"images: expected an array with height and width axes {tuple(axes)}, got shape {list(a.shape)}")
+    h_axis, w_axis = (int(ax) % a.ndim for ax in axes)
+    H, W = padded_size(a.shape[h_axis], a.shape[w_axis], multiple)
+    if (H, W) == (a.shape[h_axis], a.shape[w_axis]):
+        return a
+    pad = [(0, 0)] * a.ndim
+    pad[h_axis], pad[w_axis] = (0, H - a.shape[h_axis]), (0, W - a.shape[w_axis])
+    return np.pad(a, pad, mode="edge")
+
+
+def crop_to(images: np.ndarray, size: tuple[int, int], axes: tuple[int, int] = (-3, -2)) -> np.ndarray:
+    """The top-left ``size`` = (H, W) of ``images`` on its height and width ``axes`` (as for ``pad_to_multiple``,
+    whose padding it removes); ``images`` itself when it is that size already."""
+    a = np.asarray(images)
+    h_axis, w_axis = (int(ax) % a.ndim for ax in axes)
+    H, W = (_positive_int(v, "size") for v in size)
+    if H > a.shape[h_axis] or W > a.shape[w_axis]:
+        raise ValueError(f"size: {(H, W)} exceeds the images' {(a.shape[h_axis], a.shape[w_axis])}")
+    if (H, W) == (a.shape[h_axis], a.shape[w_axis]):
+        return a
+    index = [slice(None)] * a.ndim
+    index[h_axis], index[w_axis] = slice(0, H), slice(0, W)
+    return a[tuple(index)]
 
 
 class _Model:
@@ -229,16 +297,21 @@ class _Model:
         self.meta = meta
         self.session = session
         self.size = header.size
+        self.multiple = header.multiple
         self.precision = header.precision
         self.input_names = header.inputs
         self.output_names = header.outputs
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}({str(self.path)!r}, precision={self.precision!r}, size={self.size})"
+        multiple = "" if self.multiple is None else f", multiple={self.multiple}"
+        return f"{type(self).__name__}({str(self.path)!r}, precision={self.precision!r}, size={self.size}{multiple})"
 
 
 class RefinerModel(_Model):
-    """The exported Refiner. ``refine`` takes HWC images in [0, 1] of exactly ``size`` = (H, W).
+    """The exported Refiner. ``refine`` takes HWC images in [0, 1] of any size when the file gives ``multiple``
+    (metadata ``trioman.size_multiple``, the model's total downsampling; sides that are not multiples of it are
+    padded, edge replicate on the bottom and the right, and the output cropped back), else of exactly ``size``
+    (an older fixed-size export). ``size`` = (H, W) is the size the export's parity and gates were measured at.
 
     ``conditions`` ("none", "tex", "tex+geo", "warp", "warp+geo") says which of coarse / reference / normal the graph takes
     (``input_names``); inputs it does not take are ignored. The graph's raw output holds every view
@@ -261,11 +334,17 @@ class RefinerModel(_Model):
                               f"{conditions!r}, got {list(self.input_names)}")
         if self.output_names != (REFINER_OUTPUT,):
             raise FormatError(f"{path}: metadata {_key('outputs')!r}: expected [{REFINER_OUTPUT!r}], got {list(self.output_names)}")
-        _check_graph(opened.session, opened.header, path, (views, 3, *self.size))
+        _check_graph(opened.session, opened.header, path,
+                     (views, 3, *((None, None) if self.multiple is not None else self.size)))
         self.conditions = conditions
         self.views = views
 
+    def takes(self, height: int, width: int) -> bool:
+        """Does ``refine`` take images of ``height`` x ``width``? Any size with ``multiple``, else ``size`` only."""
+        return self.multiple is not None or (height, width) == tuple(self.size)
+
     def _feed(self, arrays: dict[str, Any], check) -> dict[str, np.ndarray]:
+        """The NCHW feed of the inputs the graph takes; one batch size and one image size among them."""
         feed = {}
         for name in self.input_names:
             if arrays[name] is None:
@@ -274,18 +353,31 @@ class RefinerModel(_Model):
         batch = {name: a.shape[0] for name, a in feed.items()}
         if len(set(batch.values())) != 1:
             raise ValueError(f"{self.input_names[-1]}: batch sizes differ between inputs: {batch}")
+        for name, a in feed.items():
+            if a.shape[2:] != feed["coarse"].shape[2:]:
+                raise ValueError(f"{name}: image size (H, W) = {tuple(a.shape[2:])} differs from coarse's "
+                                 f"{tuple(feed['coarse'].shape[2:])}")
         return feed
+
+    def _run(self, feed: dict[str, np.ndarray]) -> np.ndarray:
+        """The graph on ``feed`` [B, 3, H, W]: padded to ``multiple`` on the way in, cropped back on the way out."""
+        if self.multiple is None:
+            return self.session.run([REFINER_OUTPUT], feed)[0]
+        size = feed["coarse"].shape[2:]
+        feed = {name: np.ascontiguousarray(pad_to_multiple(a, self.multiple, (-2, -1))) for name, a in feed.items()}
+        return np.ascontiguousarray(crop_to(self.session.run([REFINER_OUTPUT], feed)[0], size, (-2, -1)))
 
     def run(self, coarse: Any, reference: Any = None, normal: Any = None) -> np.ndarray:
         """The graph itself: float32 NCHW inputs [B, 3, H, W] in [0, 1] -> [B, V, 3, H, W] (views: coarse,
-        reference, normal, as many as the conditions use)."""
+        reference, normal, as many as the conditions use); (H, W) as ``refine`` takes them, padded and cropped
+        as there."""
         feed = self._feed({"coarse": coarse, "reference": reference, "normal": normal},
-                          lambda x, name: _check_nchw(x, name, self.size))
-        return self.session.run([REFINER_OUTPUT], feed)[0]
+                          lambda x, name: _check_nchw(x, name, None if self.multiple is not None else self.size))
+        return self._run(feed)
 
     def refine(self, coarse: Any, reference: Any = None, normal: Any = None) -> np.ndarray:
-        """HWC float images in [0, 1], each [H, W, 3] or [B, H, W, 3] with (H, W) = ``size`` -> the refined
-        coarse view, the shape of ``coarse``, float32 clipped to [0, 1].
+        """HWC float images in [0, 1], each [H, W, 3] or [B, H, W, 3], all of one size (any with ``multiple``,
+        else ``size``) -> the refined coarse view, the shape of ``coarse``, float32 clipped to [0, 1].
 
         ``reference`` is required with conditions "tex" and "tex+geo" (a real frame near the view) and "warp",
         "warp+geo" (the aligned reference, filled with the coarse render where nothing was carried),
@@ -295,13 +387,13 @@ class RefinerModel(_Model):
 
         def check(x: Any, name: str) -> np.ndarray:
             a, singles[name] = _hwc_batch(x, name)
-            if tuple(a.shape[1:3]) != self.size:
+            if not self.takes(*a.shape[1:3]):
                 raise ValueError(f"{name}: image size (H, W) = {tuple(a.shape[1:3])} differs from the model's {self.size} "
                                  f"(this Refiner was exported for {self.size[0]}x{self.size[1]} images)")
             return _nchw(a)
 
         feed = self._feed({"coarse": coarse, "reference": reference, "normal": normal}, check)
-        out = self.session.run([REFINER_OUTPUT], feed)[0][:, 0]  # [B, 3, H, W], the coarse view
+        out = self._run(feed)[:, 0]  # [B, 3, H, W], the coarse view
         bad = int((~np.isfinite(out)).sum())
         if bad:  # the model's fault, not the images'
             raise ValueError(f"refiner: {self.path}: its output holds {bad} NaN or Inf value(s) on finite inputs "
@@ -339,6 +431,9 @@ class ExaminerModel(_Model):
             raise FormatError(f"{path}: metadata {_key('outputs')!r}: expected [{EXAMINER_OUTPUT!r}], got {list(self.output_names)}")
         if self.size[0] != self.size[1]:
             raise FormatError(f"{path}: metadata {_key('input_size')!r}: the Examiner takes square images, got {self.size}")
+        if self.multiple is not None:
+            raise FormatError(f"{path}: metadata {_key(SIZE_MULTIPLE_KEY)!r}: the Examiner takes one size, its "
+                              f"{_key('input_size')!r} (it resizes its inputs to it)")
         _check_graph(opened.session, opened.header, path, ())
 
     def run(self, candidate: Any, reference: Any) -> np.ndarray:
@@ -429,5 +524,8 @@ __all__ = [
     "META_PREFIX",
     "RefinerModel",
     "load_model",
+    "crop_to",
+    "pad_to_multiple",
+    "padded_size",
     "read_metadata",
 ]

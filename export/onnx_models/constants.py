@@ -7,6 +7,7 @@ EXPORTER = "torch.onnx.export, TorchScript (legacy) exporter, dynamo=False"
 TRACE_BATCH = 2  # trace with batch >= 2 (a traced size-1 batch may be specialised)
 PARITY_BATCHES = (1, 3)  # other batch sizes than the traced one
 BATCH_AXIS = "batch"
+HEIGHT_AXIS, WIDTH_AXIS = "height", "width"  # the Refiner's symbolic image size (its graph takes any multiple of its downsampling)
 MAX_PROTO_BYTES = 2**31 - 2**24  # one serialised ONNX protobuf is below 2 GiB; keep 16 MiB for the graph itself
 REFINER_ATOL = 1e-3  # max |onnxruntime - torch| on refined images (docs/design.md, Deployment)
 EXAMINER_ATOL = 1e-4  # on Examiner scores

@@ -117,7 +117,7 @@ def _model_report(job: Job) -> dict:
     return {"source": job.src.source, "step": job.src.step, "config_hash": job.src.config_hash,
             "config": job.config.to_dict(), "input_size": list(job.size), "inputs": list(job.inputs),
             "outputs": list(job.outputs), "data": job.data.info,
-            **({"conditions": job.config.conditions} if job.kind == "refiner" else {})}
+            **({"conditions": job.config.conditions, "size_multiple": job.multiple} if job.kind == "refiner" else {})}
 
 
 def _export_one(kind: str, model_or_ckpt: Any, path: str | os.PathLike, *, size: Any, precision: str,

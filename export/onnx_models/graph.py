@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 import warnings
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import onnx
 import torch
@@ -24,9 +24,10 @@ def _dims(value_info: Any) -> list[int | str | None]:
     return out
 
 
-def check_dims(proto: onnx.ModelProto, inputs: Sequence[str], outputs: Sequence[str], input_tail: Sequence[int],
-               output_tail: Sequence[int], where: str) -> None:
-    """Input and output names, dim 0 symbolic ("batch"), the other dims static and as expected."""
+def check_dims(proto: onnx.ModelProto, inputs: Sequence[str], outputs: Sequence[str], input_tail: Sequence[int | str],
+               output_tail: Sequence[int | str], where: str) -> None:
+    """Input and output names, dim 0 symbolic ("batch"), the other dims as the tails say: an int a static dim of
+    that size, a str a symbolic dim of that name (the Refiner's "height" and "width")."""
     got_in = [i.name for i in proto.graph.input]
     got_out = [o.name for o in proto.graph.output]
     if got_in != list(inputs) or got_out != list(outputs):
@@ -34,17 +35,23 @@ def check_dims(proto: onnx.ModelProto, inputs: Sequence[str], outputs: Sequence[
     for v, tail in [(i, input_tail) for i in proto.graph.input] + [(o, output_tail) for o in proto.graph.output]:
         dims = _dims(v)
         if len(dims) != 1 + len(tail) or isinstance(dims[0], int) or dims[0] is None or list(dims[1:]) != list(tail):
-            raise ExportError(f"{where}: {v.name!r} exported with dims {dims}, expected [{BATCH_AXIS!r}, "
-                              f"{', '.join(map(str, tail))}] (symbolic batch, static rest)")
+            symbolic = [BATCH_AXIS] + [d for d in tail if isinstance(d, str)]
+            raise ExportError(f"{where}: {v.name!r} exported with dims {dims}, expected {[BATCH_AXIS, *tail]} "
+                              f"(symbolic {', '.join(symbolic)}; static rest)")
 
 
-def pin_output_dims(proto: onnx.ModelProto) -> None:
-    """Make the outputs' non-batch dims static where ONNX shape inference proves them (the legacy exporter
-    declares every output dim of a dynamic-axes graph symbolic, e.g. 'Transposerefined_dim_1')."""
+def pin_output_dims(proto: onnx.ModelProto, symbolic: Mapping[str, Mapping[int, str]]) -> None:
+    """The outputs' dims named in ``symbolic`` (output name -> {axis: name}, as the export's dynamic axes) get
+    those names; the others, but for the batch, are made static where ONNX shape inference proves them (the legacy
+    exporter declares every output dim of a dynamic-axes graph symbolic, e.g. 'Transposerefined_dim_1')."""
     inferred = onnx.shape_inference.infer_shapes(proto, strict_mode=True, data_prop=True)
     shapes = {o.name: o.type.tensor_type.shape.dim for o in inferred.graph.output}
     for o in proto.graph.output:
+        named = symbolic.get(o.name, {})
         for j, d in enumerate(o.type.tensor_type.shape.dim):
+            if j in named:
+                d.dim_param = named[j]  # clears dim_value (a oneof)
+                continue
             if j == 0 or d.HasField("dim_value"):
                 continue
             got = shapes.get(o.name)
@@ -86,16 +93,20 @@ def set_metadata(proto: onnx.ModelProto, meta: dict[str, str]) -> None:
 
 
 def torch_export(model: nn.Module, example: tuple[torch.Tensor, ...], inputs: Sequence[str],
-                  outputs: Sequence[str], scratch: Path | None = None) -> onnx.ModelProto:
+                  outputs: Sequence[str], scratch: Path | None = None,
+                  axes: Mapping[str, Mapping[int, str]] | None = None) -> onnx.ModelProto:
     """The traced graph; with ``scratch`` (a folder), traced into a file there (the exporter then writes a
-    model over 2 GiB as external data) and read back with its weights, for ``save_proto(..., external=True)``."""
+    model over 2 GiB as external data) and read back with its weights, for ``save_proto(..., external=True)``.
+    ``axes``: the symbolic dims per input and output name ({axis: name}); by default the batch (dim 0) alone."""
+    if axes is None:
+        axes = {n: {0: BATCH_AXIS} for n in list(inputs) + list(outputs)}
     target: Any = io.BytesIO() if scratch is None else str(scratch / "trace.onnx")
     # no autograd: the trace would keep every activation for a backward pass (the same graph either way)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice and tracer warnings
         torch.onnx.export(
             model, example, target, input_names=list(inputs), output_names=list(outputs), opset_version=OPSET,
-            dynamic_axes={n: {0: BATCH_AXIS} for n in list(inputs) + list(outputs)}, dynamo=False,
+            dynamic_axes={n: dict(a) for n, a in axes.items()}, dynamo=False,
         )
     return onnx.load_from_string(target.getvalue()) if scratch is None else onnx.load(target)
 

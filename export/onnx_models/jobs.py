@@ -17,11 +17,13 @@ import torch
 from trioman import __version__
 from trioman.export.onnx_models.checkpoints import Source
 from trioman.export.onnx_models.constants import (
+    BATCH_AXIS,
     EXAMINER_ATOL,
     EXPORTER,
     FP16_KEEP_FP32,
     FP16_NOTE,
     FP32_NOTE,
+    HEIGHT_AXIS,
     INT8_MAX_PSNR_DROP_DB,
     INT8_MIN_AGREEMENT,
     KEEP_THRESHOLD,
@@ -32,6 +34,7 @@ from trioman.export.onnx_models.constants import (
     REFINER_INT8_OPS,
     TRACE_BATCH,
     VARIANT_PARITY_FRAMES,
+    WIDTH_AXIS,
 )
 from trioman.export.onnx_models.errors import ExportError, ExportParityError
 from trioman.export.onnx_models.frames import Data, Frames, nchw, refiner_frames_per_batch
@@ -61,10 +64,23 @@ class Job(abc.ABC):
         self.inputs: tuple[str, ...] = ()
         self.outputs: tuple[str, ...] = ()
 
-    # subclasses: names, output dims, metadata extras, real-frame feeds, gate
+    # subclasses: names, dims, metadata extras, real-frame feeds, gate
+    def input_tail(self) -> tuple[int | str, ...]:
+        """Each input's dimensions after the batch (an int: static; a str: the symbolic dim's name)."""
+        return (3, *self.size)
+
     @abc.abstractmethod
-    def output_tail(self) -> tuple[int, ...]:
-        """The output's dimensions after the batch."""
+    def output_tail(self) -> tuple[int | str, ...]:
+        """The output's dimensions after the batch (as ``input_tail``)."""
+
+    def dynamic_axes(self) -> dict[str, dict[int, str]]:
+        """The symbolic dims of every input and output, {axis: name}: those the tails name, and the batch."""
+        tails = {**{n: self.input_tail() for n in self.inputs}, **{n: self.output_tail() for n in self.outputs}}
+        return {n: {0: BATCH_AXIS, **{1 + j: d for j, d in enumerate(tail) if isinstance(d, str)}} for n, tail in tails.items()}
+
+    def other_sizes(self) -> list[tuple[int, int]]:
+        """Image sizes besides ``size`` the parity is measured at (a graph of symbolic H and W)."""
+        return []
 
     def extra_meta(self) -> dict[str, str]:
         return {}
@@ -100,22 +116,26 @@ class Job(abc.ABC):
         meta.update({p + k: v for k, v in (extra or {}).items()})
         return meta
 
-    def random_feeds(self) -> list[dict[str, np.ndarray]]:
+    def random_feeds(self, size: tuple[int, int] | None = None,
+                     batches: tuple[int, ...] = PARITY_BATCHES) -> list[dict[str, np.ndarray]]:
+        """Random images in [0, 1] at ``size`` (default: the export size), one feed per batch size."""
         g = torch.Generator().manual_seed(self.seed + 17)
-        H, W = self.size
-        return [{n: torch.rand((b, 3, H, W), generator=g).numpy() for n in self.inputs} for b in PARITY_BATCHES]
+        H, W = size or self.size
+        return [{n: torch.rand((b, 3, H, W), generator=g).numpy() for n in self.inputs} for b in batches]
 
     def torch_run(self, feed: dict[str, np.ndarray]) -> np.ndarray:
         with torch.no_grad():
             return self.model(*(torch.from_numpy(feed[n]) for n in self.inputs)).numpy()
 
     def parity(self, path: Path, max_frames: int | None = None) -> dict:
-        """max |onnxruntime - torch| on random inputs (batch 1 and 3) and on the gate frames (real triplet
-        frames when calibration data is given, else synthetic ones; the first ``max_frames`` of them)."""
+        """max |onnxruntime - torch| on random inputs (batch 1 and 3), on the gate frames (real triplet
+        frames when calibration data is given, else synthetic ones; the first ``max_frames`` of them), and on
+        random inputs of batch 1 at each of ``other_sizes``."""
         frames = self.data.gate if max_frames is None else Frames(*(None if a is None else a[:max_frames] for a in self.data.gate))
         random, real = self.random_feeds(), self.real_feeds(frames)
+        others = {f"{h}x{w}": self.random_feeds((h, w), (1,)) for h, w in self.other_sizes()}
         # torch first, then the session: only one of them holds a batch's activations at a time
-        want = {id(f): self.torch_run(f) for f in random + real}
+        want = {id(f): self.torch_run(f) for f in random + real + [f for feeds in others.values() for f in feeds]}
         m = rt.load_model(path, self.kind)
 
         def worst(feeds: list[dict[str, np.ndarray]]) -> float:
@@ -126,8 +146,17 @@ class Job(abc.ABC):
         out = {"random": worst(random), "frames": worst(real),
                "frames_source": self.data.info["source"], "frame_count": frames.count, "batches": list(PARITY_BATCHES),
                "atol": self.atol}
-        out["max_abs"] = float(np.max([out["random"], out["frames"]]))
+        if others:  # H x W -> max |diff| there
+            out["other_sizes"] = {size: worst(feeds) for size, feeds in others.items()}
+        out["max_abs"] = float(np.max([out["random"], out["frames"], *out.get("other_sizes", {}).values()]))
         return out
+
+    @staticmethod
+    def worst_inputs(parity: dict) -> str:
+        """Which inputs gave ``parity``'s largest difference, in words."""
+        cases = {"random": parity["random"], f"{parity['frames_source']} frame": parity["frames"],
+                 **{f"random {size}": v for size, v in parity.get("other_sizes", {}).items()}}
+        return max(cases, key=lambda k: np.inf if np.isnan(cases[k]) else cases[k])  # NaN is the worst
 
     def export_fp32(self, path: Path) -> dict:
         t0 = time.perf_counter()
@@ -136,10 +165,11 @@ class Job(abc.ABC):
         H, W = self.size
         g = torch.Generator().manual_seed(self.seed)
         example = tuple(torch.rand((TRACE_BATCH, 3, H, W), generator=g) for _ in self.inputs)
+        axes = self.dynamic_axes()
         with tempfile.TemporaryDirectory(dir=path.parent) as scratch:
-            proto = torch_export(self.model, example, self.inputs, self.outputs, Path(scratch) if external else None)
-        pin_output_dims(proto)
-        check_dims(proto, self.inputs, self.outputs, (3, H, W), self.output_tail(), f"{self.kind} fp32")
+            proto = torch_export(self.model, example, self.inputs, self.outputs, Path(scratch) if external else None, axes)
+        pin_output_dims(proto, {n: axes[n] for n in self.outputs})
+        check_dims(proto, self.inputs, self.outputs, self.input_tail(), self.output_tail(), f"{self.kind} fp32")
         set_metadata(proto, self.metadata("fp32", {"external_data": external_data_path(path).name} if external else None))
         if not external:
             onnx.checker.check_model(proto, full_check=True)
@@ -148,7 +178,7 @@ class Job(abc.ABC):
             onnx.checker.check_model(str(path), full_check=True)
         parity = self.parity(path)
         if not parity["max_abs"] <= self.atol:  # NaN fails too
-            where = "random" if parity["random"] >= parity["frames"] else f"{parity['frames_source']} frame"
+            where = self.worst_inputs(parity)
             raise ExportParityError(
                 f"{self.kind} fp32: onnxruntime differs from torch by max |diff| {parity['max_abs']:.3g} on {where} inputs, "
                 f"beyond the tolerance {self.atol:g}; nothing written")
@@ -168,7 +198,7 @@ class Job(abc.ABC):
         return entry
 
     def finish_variant(self, proto: onnx.ModelProto, path: Path, precision: str, extra: dict[str, str]) -> None:
-        check_dims(proto, self.inputs, self.outputs, (3, *self.size), self.output_tail(), f"{self.kind} {precision}")
+        check_dims(proto, self.inputs, self.outputs, self.input_tail(), self.output_tail(), f"{self.kind} {precision}")
         set_metadata(proto, self.metadata(precision, extra))
         onnx.checker.check_model(proto)
         save_proto(proto, path)
@@ -199,11 +229,25 @@ class RefinerJob(Job):
         self.inputs = tuple(rt.REFINER_INPUTS[: self.config.views])
         self.outputs = (rt.REFINER_OUTPUT,)
 
-    def output_tail(self) -> tuple[int, ...]:
-        return (self.config.views, 3, *self.size)
+    @property
+    def multiple(self) -> int:
+        """The total downsampling: the graph takes H and W that are multiples of it."""
+        return int(self.model.total_downsample)
+
+    def input_tail(self) -> tuple[int | str, ...]:
+        return (3, HEIGHT_AXIS, WIDTH_AXIS)
+
+    def output_tail(self) -> tuple[int | str, ...]:
+        return (self.config.views, 3, HEIGHT_AXIS, WIDTH_AXIS)
+
+    def other_sizes(self) -> list[tuple[int, int]]:
+        """One size besides the export size, each side changed by one multiple (the height down where it can be,
+        the width up), so a size baked into the graph, or H and W swapped, shows in the parity."""
+        (H, W), m = self.size, self.multiple
+        return [(H - m if H > m else H + m, W + m)]
 
     def extra_meta(self) -> dict[str, str]:
-        return {"conditions": self.config.conditions,
+        return {"conditions": self.config.conditions, rt.SIZE_MULTIPLE_KEY: str(self.multiple),
                 "normalization": "inputs RGB float32 NCHW [B, 3, H, W] in [0, 1] (coarse render, reference: a real "
                                  "frame, or with conditions warp* the aligned reference filled with the coarse render, "
                                  "body normal map: as many as the conditions use), not normalised; output "

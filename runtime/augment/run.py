@@ -119,12 +119,11 @@ def augment(
         check_joints(av, subj, avatar_path)
         ref_model = None if refiner_path is None else RefinerModel(refiner_path, threads=threads)
         H, W = subj.height, subj.width
-        if ref_model is not None and tuple(ref_model.size) != (H, W):
+        if ref_model is not None and not ref_model.takes(H, W):
             h, w = ref_model.size
-            how = (f"trioman export onnx --refiner CKPT --size {H}" if H == W
-                   else f"export_refiner_onnx(CKPT, PATH, size=({H}, {W}))")
-            raise ValueError(f"refiner: {refiner_path} takes {h}x{w} (H x W) images, but the subject's images are "
-                             f"{H}x{W}; export the Refiner at the subject's size ({how})")
+            raise ValueError(f"refiner: {refiner_path} takes {h}x{w} (H x W) images only, but the subject's images are "
+                             f"{H}x{W}; export the Refiner again (trioman export onnx --refiner CKPT): an export with "
+                             f"`trioman.size_multiple` takes any size")
         ex_model = None if examiner_path is None else ExaminerModel(examiner_path, threads=threads)
         kind = "aligned" if ref_model is None else "refined" if ex_model is None else "examined"
         pseudo = PseudoConfig(kind=kind, mask=mask, threshold=threshold, keep_carried=keep_carried)

@@ -1,5 +1,5 @@
-"""``trioman export onnx``: fp32 parity with torch, exported dims and metadata, int8 gates, fp16, the
-folder's atomicity and the CLI.
+"""``trioman export onnx``: fp32 parity with torch (the Refiner's at other image sizes too), exported dims and
+metadata, int8 gates, fp16, the folder's atomicity and the CLI.
 
 The models are tiny (32x32 images) and trained for a few dozen steps on synthetic triplets, so that
 the int8 gates measure something: the Refiner is no longer the identity it starts as, and the
@@ -27,6 +27,7 @@ from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create
 from trioman.toolkit.model_training import examiner_batch, refiner_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, refiner_loop  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
+from trioman.toolkit.train.augment_models import TorchRefiner  # noqa: E402
 from trioman.toolkit.triplets import TripletSet  # noqa: E402
 
 S = 32
@@ -146,21 +147,24 @@ def test_folder_report_and_metadata(exported, corpus):
             assert meta["trioman.config_hash"] == want_hash and meta["trioman.source"] == str(ckpt.resolve())
             assert json.loads(meta["trioman.config"]) == json.loads(json.dumps(state["config"])) and meta["trioman.version"]
             assert "[0, 1]" in meta["trioman.normalization"]
+            # every Refiner variant takes any size (sides padded to multiples of its total downsampling); the Examiner one
+            assert meta.get("trioman.size_multiple") == ("8" if kind == "refiner" else None)
+    assert report["models"]["refiner"]["size_multiple"] == 8 and "size_multiple" not in report["models"]["examiner"]
     assert read_metadata(out / "refiner.onnx")["trioman.conditions"] == "tex+geo"
     assert json.loads(read_metadata(out / "refiner.onnx")["trioman.inputs"]) == ["coarse", "reference", "normal"]
     assert "mean = std = 0.5" in read_metadata(out / "examiner.onnx")["trioman.normalization"]
 
 
 @pytest.mark.parametrize("precision", ["fp32", "int8", "fp16"])
-def test_exported_dims_have_a_symbolic_batch_and_static_sizes(exported, precision):
+def test_exported_dims_have_a_symbolic_batch_and_refiner_size(exported, precision):
     _, out = exported
 
     def dims(v):
         return [d.dim_param or d.dim_value for d in v.type.tensor_type.shape.dim]
 
     refiner = onnx.load(str(out / om.file_name("refiner", precision))).graph
-    assert [dims(i) for i in refiner.input] == [["batch", 3, S, S]] * 3
-    assert [dims(o) for o in refiner.output] == [["batch", 3, 3, S, S]]
+    assert [dims(i) for i in refiner.input] == [["batch", 3, "height", "width"]] * 3
+    assert [dims(o) for o in refiner.output] == [["batch", 3, 3, "height", "width"]]
     examiner = onnx.load(str(out / om.file_name("examiner", precision))).graph
     assert [dims(i) for i in examiner.input] == [["batch", 3, S, S]] * 2
     assert [dims(o) for o in examiner.output] == [["batch"]]
@@ -173,6 +177,18 @@ def test_check_dims_rejects_a_static_batch():
         [onnx.helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, ["batch", 3, S, S])])
     with pytest.raises(om.ExportError, match=r"'x' exported with dims \[2, 3, 32, 32\]"):
         om.check_dims(onnx.helper.make_model(graph), ["x"], ["y"], (3, S, S), (3, S, S), "test")
+
+
+def test_check_dims_wants_the_symbolic_sizes_it_is_given():
+    graph = onnx.helper.make_graph(
+        [onnx.helper.make_node("Identity", ["x"], ["y"])], "g",
+        [onnx.helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, ["batch", 3, "height", "width"])],
+        [onnx.helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, ["batch", 3, S, S])])
+    model = onnx.helper.make_model(graph)
+    om.check_dims(model, ["x"], ["y"], (3, "height", "width"), (3, S, S), "test")
+    with pytest.raises(om.ExportError, match=r"test: 'y' exported with dims \['batch', 3, 32, 32\], expected "
+                                             r"\['batch', 3, 'height', 'width'\] \(symbolic batch, height, width; static rest\)"):
+        om.check_dims(model, ["x"], ["y"], (3, "height", "width"), (3, "height", "width"), "test")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -203,6 +219,41 @@ def test_fp32_matches_torch_at_other_batch_sizes(exported, torch_models, corpus,
         got = examiner.run(candidate, reference)
         assert got.shape == want.shape == (batch,)
         assert np.abs(got - want).max() <= om.EXAMINER_ATOL
+
+
+def test_fp32_refiner_parity_was_measured_at_another_size_too(exported):
+    report, _ = exported
+    parity = report["files"]["refiner.onnx"]["parity"]
+    assert list(parity["other_sizes"]) == ["24x40"]  # each side one multiple (8) from the export size 32x32
+    assert parity["max_abs"] == max(parity["random"], parity["frames"], parity["other_sizes"]["24x40"]) <= om.REFINER_ATOL
+    assert "other_sizes" not in report["files"]["examiner.onnx"]["parity"]
+
+
+@pytest.mark.parametrize("size", [(S, S), (24, 48), (30, 45)], ids=["export-size", "multiple", "not-a-multiple"])
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "int8"])
+def test_refiner_matches_torch_at_any_size(exported, torch_models, size, precision):
+    """The ONNX Refiner against the torch one at the export size, at another multiple of its total downsampling (8) and
+    at a size that is not (30 x 45: the runtime pads to 32 x 48, edge, and crops; torch is run on the same padded
+    images): fp32 within the export's tolerance; fp16 and int8 (gated on other things than parity) at every size
+    within bounds about 5x what they give at the export size (max and mean |diff|)."""
+    _, out = exported
+    refiner_t = torch_models[0]
+    H, W = size
+    g = torch.Generator().manual_seed(H * W)
+    coarse, reference, normal = (torch.rand(2, H, W, 3, generator=g).numpy() for _ in range(3))
+    m = RefinerModel(out / om.file_name("refiner", precision))
+    assert m.multiple == 8 and m.size == (S, S)
+    got = m.refine(coarse, reference, normal)
+    padded = [torch.from_numpy(_nchw(np.pad(x, [(0, 0), (0, -H % 8), (0, -W % 8), (0, 0)], mode="edge")))
+              for x in (coarse, reference, normal)]
+    with torch.no_grad():
+        want = refiner_t(*padded)[:, 0, :, :H, :W].clamp(0, 1).permute(0, 2, 3, 1).numpy()
+    assert got.shape == want.shape == (2, H, W, 3)
+    np.testing.assert_allclose(TorchRefiner(refiner_t, Path("r.pt")).refine(coarse, reference, normal), want, atol=1e-6)
+    atol, mean = {"fp32": (om.REFINER_ATOL, 1e-4), "fp16": (1e-2, 1e-3), "int8": (0.1, 5e-3)}[precision]
+    assert np.abs(got - want).max() <= atol and np.abs(got - want).mean() <= mean
+    if precision == "fp32":
+        assert np.abs(got - coarse).max() > 0.01  # not the identity
 
 
 def test_fp32_examiner_decisions_match_torch(exported, torch_models, corpus):
@@ -330,6 +381,19 @@ def test_sizes_and_arguments(corpus, tmp_path):
     with pytest.raises(ValueError, match="lies inside the input"):  # never written into its own input
         om.export_onnx(examiner=corpus["examiner_run"], out=corpus["examiner_run"] / "onnx")
     assert not (tmp_path / "x").exists() and not (corpus["examiner_run"] / "onnx").exists()
+
+
+def test_an_older_fixed_size_export_still_loads_and_refuses_other_sizes(exported, tmp_path):
+    from tests.runtime.factories import fixed_size_copy
+
+    _, out = exported
+    m = RefinerModel(fixed_size_copy(out / "refiner.int8.onnx", tmp_path / "old.onnx"))
+    assert m.multiple is None and m.size == (S, S) and m.precision == "int8"
+    x = np.random.default_rng(0).random((1, S, S, 3), dtype=np.float32)
+    np.testing.assert_array_equal(m.refine(x, x, x), RefinerModel(out / "refiner.int8.onnx").refine(x, x, x))
+    y = np.zeros((1, 30, 45, 3), np.float32)
+    with pytest.raises(ValueError, match=r"^coarse: image size \(H, W\) = \(30, 45\) differs from the model's \(32, 32\)"):
+        m.refine(y, y, y)
 
 
 def test_refiner_batches_hold_a_bounded_number_of_pixels():

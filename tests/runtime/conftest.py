@@ -19,10 +19,12 @@ def avatar_dir(tmp_path):
 @pytest.fixture(scope="module")
 def inputs(tiny_run, tmp_path_factory):
     """A tiny exported avatar and its subject, tiny Refiner and Examiner ONNX files and an avatar of another body
-    (tests/runtime/test_augment.py, tests/runtime/test_shards.py); torch and onnx build them."""
+    (tests/runtime/test_augment.py, tests/runtime/test_shards.py); torch and onnx build them. refiner16.onnx is exported
+    at 16x16 (it takes any size), refiner16_fixed.onnx the same as exported before `trioman.size_multiple`: 16x16 only."""
     torch = pytest.importorskip("torch")
     pytest.importorskip("onnx")
     from tests.export.factories import trained_like
+    from tests.runtime.factories import fixed_size_copy
     from tests.toolkit.avatar.factories import SMALL
     from tests.toolkit.examiner.helpers import TINY
     from tests.toolkit.refiner.helpers import open_zero_inits, tiny_config
@@ -44,6 +46,7 @@ def inputs(tiny_run, tmp_path_factory):
         model = open_zero_inits(create_refiner(tiny_config(conditions=conditions)), std=0.2)
         export_refiner_onnx(model, root / f"{name}.onnx", size=size, gate_frames=2)
         models[name] = root / f"{name}.onnx"
+    models["refiner16_fixed"] = fixed_size_copy(models["refiner16"], root / "refiner16_fixed.onnx")
     torch.manual_seed(0)
     ex = create_examiner(TINY)
     with torch.no_grad():  # spread the scores away from 0.5

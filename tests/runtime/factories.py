@@ -152,3 +152,67 @@ PARENTS = [-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 12, 11, 14, 11, 16]
 JOINTS = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, -0.05], [0.12, 0, -0.45], [0.14, 0, -0.85], [-0.1, 0, 0],
                    [-0.1, 0, -0.05], [-0.12, 0, -0.45], [-0.14, 0, -0.85], [0, 0, 0.05], [0, 0, 0.2], [0, 0, 0.4],
                    [0.18, 0, 0.45], [0.35, 0, 0.25], [-0.18, 0, 0.45], [-0.35, 0, 0.25], [0, 0, 0.55], [0, 0, 0.65]])
+
+
+# --------------------------------------------------------------------------------------------------
+# Refiner ONNX files without torch (onnx builds them): a stand-in of a fully convolutional Refiner, and an older
+# export's fixed-size file
+
+
+def block_refiner(path, multiple: int = 8, size: tuple[int, int] = (32, 32), dims: tuple = ("height", "width")):
+    """A Refiner ONNX file (conditions "none") with a total downsampling of ``multiple``, as `trioman export onnx`
+    writes it (``dims``: the graph's H and W, symbolic names or ints) and its metadata (``trioman.size_multiple``
+    when ``dims`` are symbolic): each ``multiple`` x ``multiple`` block of the coarse image becomes its mean
+    (AveragePool, then a nearest Resize back up). Like the real Refiner it gives wrong shapes on sides that are
+    not multiples; ``block_means`` is its output in numpy."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    scales = helper.make_tensor("scales", TensorProto.FLOAT, [4], [1.0, 1.0, float(multiple), float(multiple)])
+    axes = helper.make_tensor("axes", TensorProto.INT64, [1], [1])
+    nodes = [helper.make_node("AveragePool", ["coarse"], ["pooled"], kernel_shape=[multiple, multiple],
+                              strides=[multiple, multiple]),
+             helper.make_node("Resize", ["pooled", "", "scales"], ["up"], mode="nearest"),
+             helper.make_node("Unsqueeze", ["up", "axes"], ["refined"])]
+    graph = helper.make_graph(nodes, "block_refiner",
+                              [helper.make_tensor_value_info("coarse", TensorProto.FLOAT, ["batch", 3, *dims])],
+                              [helper.make_tensor_value_info("refined", TensorProto.FLOAT, ["batch", 1, 3, *dims])],
+                              [scales, axes])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    meta = {"format": "trioman-onnx", "format_version": "1", "kind": "refiner", "precision": "fp32",
+            "input_size": f"{size[0]},{size[1]}", "inputs": '["coarse"]', "outputs": '["refined"]', "conditions": "none"}
+    if all(isinstance(d, str) for d in dims):
+        meta["size_multiple"] = str(multiple)
+    for key, value in meta.items():
+        model.metadata_props.add(key=f"trioman.{key}", value=value)
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def block_means(images: np.ndarray, multiple: int) -> np.ndarray:
+    """``block_refiner``'s output [B, 1, 3, H, W] for HWC images [B, H, W, 3] whose sides are multiples of ``multiple``."""
+    B, H, W, C = images.shape
+    means = images.reshape(B, H // multiple, multiple, W // multiple, multiple, C).mean(axis=(2, 4))
+    up = means.repeat(multiple, axis=1).repeat(multiple, axis=2)
+    return up.transpose(0, 3, 1, 2)[:, None]
+
+
+def fixed_size_copy(src, dst):
+    """A copy of the Refiner ONNX file ``src`` as an export made before `trioman.size_multiple`: the graph's H and W
+    static at its `trioman.input_size`, without the key."""
+    import onnx
+
+    proto = onnx.load(str(src))
+    meta = {p.key: p.value for p in proto.metadata_props}
+    H, W = (int(v) for v in meta["trioman.input_size"].split(","))
+    for value in list(proto.graph.input) + list(proto.graph.output):
+        dims = value.type.tensor_type.shape.dim
+        dims[len(dims) - 2].dim_value, dims[len(dims) - 1].dim_value = H, W
+    del proto.metadata_props[:]
+    for key, value in meta.items():
+        if key != "trioman.size_multiple":
+            proto.metadata_props.add(key=key, value=value)
+    onnx.save(proto, str(dst))
+    return dst

@@ -147,6 +147,17 @@ def test_a_refiner_without_conditions_gets_neither_reference_nor_normal_map(inpu
     assert load_subject(tmp_path / "n").num_frames == 2
 
 
+def test_a_refiner_exported_at_another_size_refines_the_subjects(inputs, tmp_path):
+    """Exported at 16x16, it takes the subject's 32x32 frames: the frames of the same weights exported at 32x32."""
+    r = augment(inputs.subject, inputs.avatar, inputs.refiner16, tmp_path / "a", limit=1, progress=False)
+    assert r["settings"]["refiner"]["size"] == [16, 16] and RefinerModel(inputs.refiner16).multiple == 4
+    augment(inputs.subject, inputs.avatar, inputs.refiner, tmp_path / "b", limit=1, progress=False)
+    a, b = load_subject(tmp_path / "a"), load_subject(tmp_path / "b")
+    assert a.num_frames == b.num_frames == 2
+    for i in range(2):
+        np.testing.assert_allclose(a.image(i), b.image(i), atol=1.5 / 255)  # one 8-bit step at most
+
+
 def test_a_warp_refiner_refines_the_aligned_reference(inputs, tmp_path):
     """A warp+geo Refiner ONNX in the runtime: the aligned reference is built for it (even with the render's alpha as
     the mask), and its frames differ from the same draws refined by a tex+geo Refiner."""
@@ -246,8 +257,9 @@ def test_overwrite_removes_only_what_augment_wrote_and_resume_removes_temporary_
     (["--resume", "--overwrite"], "--resume and --overwrite: choose one"),
     (["--refiner", "{root}/missing.onnx"], "--refiner: Refiner ONNX file not found: {root}/missing.onnx"),
     (["--examiner", "{root}/missing.onnx"], "--examiner: Examiner ONNX file not found: {root}/missing.onnx"),
-    (["--refiner", "{root}/refiner16.onnx"], "refiner16.onnx takes 16x16 (H x W) images, but the subject's images are 32x32; "
-                                             "export the Refiner at the subject's size (trioman export onnx --refiner CKPT --size 32)"),
+    (["--refiner", "{root}/refiner16_fixed.onnx"], "refiner16_fixed.onnx takes 16x16 (H x W) images only, but the subject's "
+                                                   "images are 32x32; export the Refiner again (trioman export onnx --refiner "
+                                                   "CKPT): an export with `trioman.size_multiple` takes any size"),
     (["--refiner", "{root}/examiner.onnx"], "metadata 'trioman.kind': expected 'refiner', got 'examiner'"),
     (["--avatar", "{root}/other_avatar"], "other_avatar has 4 joints, but the subject's body has 104 joints"),
 ], ids=["per-frame", "per-frame-huge", "threshold-high", "threshold-low", "limit", "seed", "resume-overwrite", "refiner-missing",

@@ -8,7 +8,10 @@ Both sides take and return numpy HWC float32 images in [0, 1], as the runtime's 
     examiner.score(candidates [B, H, W, 3], real [H, W, 3]) -> [B] scores in [0, 1]
 
 ``refiner.conditions`` says which inputs it reads ("none": coarse; "tex": + reference; "tex+geo":
-+ normal). The Examiner resizes to its own input size with cv2.INTER_AREA (as the runtime does). Errors name
++ normal). A torch Refiner, and an ONNX one exported with ``trioman.size_multiple``, takes images of any size: sides
+that are not multiples of its total downsampling are padded (edge replicate, bottom and right) and the output
+cropped back, with the runtime's ``pad_to_multiple`` / ``crop_to``; an older fixed-size ONNX Refiner takes its
+export size only (``check_size``). The Examiner resizes to its own input size with cv2.INTER_AREA (as the runtime does). Errors name
 the model's parameter (``refiner: ...``, ``examiner: ...``); the commands show their flags.
 """
 
@@ -22,6 +25,7 @@ import cv2
 import numpy as np
 import torch
 
+from trioman.runtime.onnx_models import crop_to, pad_to_multiple
 from trioman.toolkit.loops.checkpoint import SELECTED, latest_checkpoint
 
 
@@ -34,7 +38,8 @@ def _nchw(x: np.ndarray) -> torch.Tensor:
 
 
 class TorchRefiner:
-    """A trained torch Refiner with the runtime's ``refine`` signature (eval mode, no grad)."""
+    """A trained torch Refiner with the runtime's ``refine`` signature (eval mode, no grad); any image size, sides
+    padded to multiples of its total downsampling (``multiple``) and the output cropped back."""
 
     def __init__(self, model: torch.nn.Module, path: Path) -> None:
         self.model, self.path = model.eval(), path
@@ -43,20 +48,23 @@ class TorchRefiner:
 
     def check_size(self, height: int, width: int, name: str = "refiner") -> None:
         """ValueError naming ``name`` (the parameter or field that gave this Refiner) unless it takes ``height``
-        x ``width`` images."""
-        if height % self.multiple or width % self.multiple:
-            raise ValueError(f"{name}: {self.path} (Refiner) needs image sides that are multiples of {self.multiple}, "
-                             f"the training frames are {width}x{height} (W x H); change `image_scale`")
+        x ``width`` images: any positive size."""
+        if height < 1 or width < 1:
+            raise ValueError(f"{name}: {self.path} (Refiner) takes images of a positive size, the training frames are "
+                             f"{width}x{height} (W x H)")
 
     @torch.no_grad()
     def refine(self, coarse: np.ndarray, reference: np.ndarray | None = None, normal: np.ndarray | None = None) -> np.ndarray:
-        args = [_nchw(coarse)] + [None if x is None else _nchw(x) for x in (reference, normal)]
+        size = np.shape(coarse)[1:3]
+        args = [_nchw(pad_to_multiple(coarse, self.multiple))]
+        args += [None if x is None else _nchw(pad_to_multiple(x, self.multiple)) for x in (reference, normal)]
         out = self.model(*args)[:, 0]  # [B, 3, H, W]: the refined coarse view
-        return out.clamp(0, 1).permute(0, 2, 3, 1).numpy()
+        return np.ascontiguousarray(crop_to(out.clamp(0, 1).permute(0, 2, 3, 1).numpy(), size))
 
 
 class OnnxRefiner:
-    """An exported Refiner (``trioman export onnx``): fixed image size."""
+    """An exported Refiner (``trioman export onnx``): any image size with ``trioman.size_multiple``, else its export
+    size only."""
 
     def __init__(self, path: Path) -> None:
         from trioman.runtime.onnx_models import load_model
@@ -67,7 +75,7 @@ class OnnxRefiner:
     def check_size(self, height: int, width: int, name: str = "refiner") -> None:
         """ValueError naming ``name`` (the parameter or field that gave this Refiner) unless it takes ``height``
         x ``width`` images."""
-        if tuple(self.model.size) != (height, width):
+        if not self.model.takes(height, width):
             h, w = self.model.size
             raise ValueError(f"{name}: {self.path} (Refiner ONNX) takes {w}x{h} (W x H) images, the training frames are "
                              f"{width}x{height}; export it at that size or train at another `image_scale`")

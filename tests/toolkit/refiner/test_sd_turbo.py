@@ -127,6 +127,12 @@ def test_onnx_parity_and_contract(exported):
     m = load_model(path, "refiner")
     out = m.run(**{n: np.random.default_rng(0).random((3, 3, S, S), dtype=np.float32) for n in ("coarse", "reference", "normal")})
     assert out.shape == (3, 3, 3, S, S)
+    # any image size: H and W symbolic, padded to multiples of the model's total downsampling, parity at another size
+    assert meta["trioman.size_multiple"] == str(model.total_downsample) == str(m.multiple)
+    assert [d.dim_param for d in proto.graph.input[0].type.tensor_type.shape.dim][2:] == ["height", "width"]
+    assert len(entry["parity"]["other_sizes"]) == 1 and max(entry["parity"]["other_sizes"].values()) <= 1e-3
+    assert m.refine(*(np.random.default_rng(i).random((1, S + 1, S + 3, 3), dtype=np.float32) for i in range(3))).shape == \
+        (1, S + 1, S + 3, 3)
 
 
 def test_a_warp_refiner_exports_with_parity(folder, tmp_path):

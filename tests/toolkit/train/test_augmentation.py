@@ -246,13 +246,31 @@ def test_bad_model_files_give_one_line_errors(models, tmp_path):
     (tmp_path / "empty_run").mkdir()
     with pytest.raises(FileNotFoundError, match="^examiner: .*empty_run holds no checkpoint"):
         load_pseudo_examiner(tmp_path / "empty_run")
+
+
+def test_a_torch_refiner_takes_any_size_padded_to_its_multiple(models):
+    """Sides that are not multiples of its total downsampling (16) are padded (edge, bottom and right) and cropped."""
     refiner = load_pseudo_refiner(models["refiner"])
-    with pytest.raises(ValueError, match=r"^refiner: .*multiples of 16.*40x24 \(W x H\); change `image_scale`"):
-        refiner.check_size(24, 40)
+    assert refiner.multiple == 16
+    refiner.check_size(24, 40)
+    rng = np.random.default_rng(0)
+    coarse, ref, normal = (rng.random((2, 24, 40, 3), dtype=np.float32) for _ in range(3))
+    got = refiner.refine(coarse, ref, normal)
+    padded = [_nchw(np.pad(x, [(0, 0), (0, 8), (0, 8), (0, 0)], mode="edge")) for x in (coarse, ref, normal)]
+    with torch.no_grad():
+        want = refiner.model(*padded)[:, 0, :, :24, :40].clamp(0, 1).permute(0, 2, 3, 1).numpy()
+    assert got.shape == (2, 24, 40, 3) and got.flags.c_contiguous
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    assert refiner.refine(coarse[:, :16, :32], ref[:, :16, :32], normal[:, :16, :32]).shape == (2, 16, 32, 3)
+
+
+def _nchw(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2)))
 
 
 def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, tmp_path):
     pytest.importorskip("onnx")
+    from tests.runtime.factories import fixed_size_copy
     from trioman.export.onnx_models import export_examiner_onnx, export_refiner_onnx
 
     export_refiner_onnx(models["refiner"], tmp_path / "r.onnx", size=SIZE)
@@ -261,10 +279,33 @@ def test_onnx_models_load_through_the_same_interface_and_check_the_size(models, 
     torch_e, onnx_e = load_pseudo_examiner(models["examiner"]), load_pseudo_examiner(tmp_path / "e.onnx")
     rng = np.random.default_rng(0)
     coarse, ref, normal = (rng.random((2, SIZE, SIZE, 3), dtype=np.float32) for _ in range(3))
-    np.testing.assert_allclose(onnx_r.refine(coarse, ref, normal), torch_r.refine(coarse, ref, normal), atol=1e-3)
     np.testing.assert_allclose(onnx_e.score(coarse, ref[0]), torch_e.score(coarse, ref[0]), atol=1e-4)
-    with pytest.raises(ValueError, match=r"^refiner: .*r.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
-        onnx_r.check_size(64, 64)
+    # the export size, another multiple of 16, and a size that is not one (both pad it alike)
+    for H, W in ((SIZE, SIZE), (48, 64), (24, 40)):
+        onnx_r.check_size(H, W)
+        coarse, ref, normal = (rng.random((2, H, W, 3), dtype=np.float32) for _ in range(3))
+        np.testing.assert_allclose(onnx_r.refine(coarse, ref, normal), torch_r.refine(coarse, ref, normal), atol=1e-3)
+    old = load_pseudo_refiner(fixed_size_copy(tmp_path / "r.onnx", tmp_path / "old.onnx"))  # an export without the key
+    old.check_size(SIZE, SIZE)
+    with pytest.raises(ValueError, match=r"^refiner: .*old.onnx \(Refiner ONNX\) takes 32x32 .* frames are 64x64"):
+        old.check_size(64, 64)
+
+
+@pytest.mark.parametrize("kind", ["torch", "onnx"])
+def test_refined_training_at_frames_that_are_not_a_multiple_of_the_refiners(subject, models, tmp_path, kind):
+    """image_scale 0.75: 24x24 frames, not a multiple of the Refiner's 16 (nor the ONNX export's size 32)."""
+    refiner = models["refiner"]
+    if kind == "onnx":
+        pytest.importorskip("onnx")
+        from trioman.export.onnx_models import export_refiner_onnx
+
+        refiner = tmp_path / "r.onnx"
+        export_refiner_onnx(models["refiner"], refiner, size=SIZE, gate_frames=2)
+    cfg = TrainConfig(iterations=8, checkpoint_every=8, image_scale=0.75, avatar=TINY_AVATAR,
+                      augment=AugmentConfig(mode="refined", refiner=str(refiner), start=0.25, refresh=10, pool=2))
+    run = train(subject, tmp_path / "run", cfg, progress=False)
+    summary = json.loads((run / AUGMENT_JSON).read_text())
+    assert summary["kept"] >= 1 and summary["seconds"]["refine"] > 0 and np.all(np.isfinite(losses(run)))
 
 
 def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys):
