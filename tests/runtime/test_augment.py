@@ -149,9 +149,9 @@ def test_a_refiner_without_conditions_gets_neither_reference_nor_normal_map(inpu
 
 def test_a_refiner_exported_at_another_size_refines_the_subjects(inputs, tmp_path):
     """Exported at 16x16, it takes the subject's 32x32 frames: the frames of the same weights exported at 32x32."""
-    r = augment(inputs.subject, inputs.avatar, inputs.refiner16, tmp_path / "a", limit=1, progress=False)
+    r = augment(inputs.subject, inputs.avatar, inputs.refiner16, tmp_path / "a", None, limit=1, progress=False)
     assert r["settings"]["refiner"]["size"] == [16, 16] and RefinerModel(inputs.refiner16).multiple == 4
-    augment(inputs.subject, inputs.avatar, inputs.refiner, tmp_path / "b", limit=1, progress=False)
+    augment(inputs.subject, inputs.avatar, inputs.refiner, tmp_path / "b", None, limit=1, progress=False)
     a, b = load_subject(tmp_path / "a"), load_subject(tmp_path / "b")
     assert a.num_frames == b.num_frames == 2
     for i in range(2):
@@ -391,7 +391,7 @@ def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs,
     subject; refused without --refiner; a resume with the other value is refused, and a run that did not record it
     resumes as one without it."""
     base = ["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--refiner", str(inputs.refiner),
-            "--frames", "all", "--limit", "1", "--seed", "7", "--quiet"]
+            "--examiner", "none", "--frames", "all", "--limit", "1", "--seed", "7", "--quiet"]
     plain, kept = tmp_path / "plain", tmp_path / "kept"
     assert main(base + ["--out", str(plain), "--no-keep-carried"]) == 0
     assert main(base + ["--out", str(kept)]) == 0
@@ -418,8 +418,8 @@ def test_keep_carried_keeps_the_carried_pixels_and_refines_only_the_rest(inputs,
         assert (kept_img[al.valid] != plain_img[al.valid]).any()
 
     no = tmp_path / "no"
-    assert main(["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--out", str(no), "--keep-carried",
-                 "--quiet"]) == 1
+    assert main(["augment", str(inputs.subject), "--avatar", str(inputs.avatar), "--out", str(no), "--refiner", "none",
+                 "--keep-carried", "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "--keep-carried: takes the Refiner's output where nothing was carried; give --refiner too" in err, err
     assert not no.exists()
