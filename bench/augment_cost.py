@@ -41,7 +41,7 @@ def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:
         if not (subject / "subject.json").is_file():
             synthesize_subject(SynthConfig(seed=config.seed, size=size, frames=config.frames, coverage=0.33), subject,
                                overwrite=subject.exists(), progress=False)
-        augment = AugmentConfig(mode=BEST)  # what `--augment` alone runs: the shipped models
+        augment = AugmentConfig(mode=BEST)  # what `--augment` alone runs
         seconds = {}
         for name, aug in (("plain", None), ("augmented", augment)):
             run = out / f"run_{size}_{name}"

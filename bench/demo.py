@@ -119,7 +119,7 @@ def _augment_stage(cfg: DemoConfig, out: Path, avatar_dir: Path, log: StageLog, 
 
 
 def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress: bool) -> dict:
-    """An avatar trained like the baseline with `--augment` (the shipped models, the measured schedule), evaluated on
+    """An avatar trained like the baseline with `--augment` (its default kind and the measured schedule), evaluated on
     the test split."""
     from trioman.runtime.outputs import remove_own
     from trioman.toolkit.evaluate import evaluate
@@ -133,7 +133,7 @@ def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress
         train(out / "subject", run_aug, train_cfg, progress=progress, lpips=lpips)
     with log.stage("eval augmented"):
         test = evaluate(run_aug, "test", lpips=lpips, progress=progress)
-    return {"run": run_aug, "test": test}
+    return {"run": run_aug, "test": test, "kind": train_cfg.augment.mode}
 
 
 def _report(base: dict, aug: dict, final: dict) -> None:
@@ -155,7 +155,7 @@ def _report(base: dict, aug: dict, final: dict) -> None:
         f"kept of {s['candidates']} candidates from {s['source_frames']} source frames, {t['total']:.0f} ms per source "
         f"frame; report {aug['out'] / 'augment.json'}, scores {aug['out'] / 'scores.png'})")
     before, after = base["test"]["mean"]["psnr"], final["test"]["mean"]["psnr"]
-    say(f"augmented run {final['run']} (trioman train {subject.root} --augment: the shipped Refiner and Examiner)")
+    say(f"augmented run {final['run']} (trioman train {subject.root} --augment: {final['kind']} pseudo-GT)")
     say(f"test PSNR (masked): baseline {before:.2f} dB, augmented {after:.2f} dB ({after - before:+.2f} dB, the same "
         f"{train_cfg.iterations} steps); report {final['run'] / 'eval_test' / 'report.md'}")
     say(f"novel views   {final['grid']} (test motions from views the capture did not see: GT | baseline | augmented)")

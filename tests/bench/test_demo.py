@@ -45,9 +45,8 @@ def test_demo_runs_export_augment_and_the_augmented_avatar_with_the_shipped_mode
 
     run_aug = out / "run_augmented"
     train_cfg = json.loads((run_aug / "config.json").read_text())["train"]
-    assert train_cfg["augment"]["mode"] == "examined" and train_cfg["iterations"] == 30
-    assert (train_cfg["augment"]["refiner"], train_cfg["augment"]["examiner"]) == (str(shipped_path("refiner")),
-                                                                                   str(shipped_path("examiner")))
+    assert train_cfg["augment"]["mode"] == "aligned" and train_cfg["iterations"] == 30  # what --augment alone runs
+    assert f"(trioman train {out / 'subject'} --augment: aligned pseudo-GT)" in printed
     psnr = PSNR_LINE.search(printed)
     assert psnr and psnr.group(4) == str(run_aug / "eval_test" / "report.md") and psnr.group(3) == "30"
     baseline, augmented = float(psnr.group(1)), float(psnr.group(2))

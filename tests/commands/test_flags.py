@@ -61,7 +61,7 @@ def test_every_flag_a_command_shows_is_one_of_its_own():
      "trioman animate: error: --azimuth: must be a finite number of degrees, got nan"),
     (["render", "A", "--out", "x.png", "--background", "red"],
      "trioman render: error: --background: expected r,g,b numbers in [0, 1], got 'red'"),
-    (["train", "S", "--out", "O", "--augment", "--refiner", "none", "--examiner", "shipped"],
+    (["train", "S", "--out", "O", "--augment", "examined", "--refiner", "none", "--examiner", "shipped"],
      "trioman train: error: --examiner: chooses among refined candidates; --refiner none gives the aligned kind"),
     (["train", "S", "--out", "O", "--augment", "aligned", "--threshold", "0.5"],
      "trioman train: error: --threshold: needs --augment examined"),

@@ -17,7 +17,9 @@ from trioman.runtime.pseudo_kinds import KINDS, MASKS
 
 MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_kinds.py)
 WITH_REFINER = ("refined", "examined")
-BEST = "examined"  # what `--augment` alone runs: the best kind measured, with the shipped models (docs/models.md)
+# what `--augment` alone runs: the best kind measured with what ships. The shipped Refiner and Examiner
+# (`--augment examined`) measured below it on the demo's subject (docs/models.md), so it is the kind without a model.
+BEST = "aligned"
 ALONE = "aligned"  # the best kind measured that needs no model (`--refiner none`)
 
 
@@ -29,7 +31,7 @@ def _texture(value: Any) -> str | None:
 @dataclass(frozen=True)
 class AugmentConfig:
     mode: str = option("coarse", flag="--augment", choices=MODES, const=BEST, default_text="off; --augment "
-                       "alone: examined, with the shipped Refiner and Examiner (docs/models.md)",
+                       "alone: aligned, the best kind measured (docs/models.md)",
                        help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
                             "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
                             "refined by --refiner (refined), the best of --per-frame refined candidates by --examiner "

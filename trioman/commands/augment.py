@@ -2,8 +2,9 @@
 frames, no torch.
 
 Generator -> coarse render -> aligned reference -> body normal map -> Refiner -> Examiner (keep the better of
-the candidates, drop it below --threshold), per source frame; the models default to the shipped ones
-(runtime/pretrained.py); with --refiner none the aligned pseudo-GT (no model); see trioman.runtime.augment and
+the candidates, drop it below --threshold), per source frame; with a Refiner (--refiner shipped: the package's, runtime/pretrained.py, or
+a file) the Examiner defaults to the shipped one; without one (--refiner none, the default) the aligned pseudo-GT
+(no model); see trioman.runtime.augment and
 docs/formats.md "Augmented frames". Train on the result with ``trioman train SUBJECT --extra-frames DIR``.
 
 ``--shard I/N`` does only shard I of N's source frames (in DIR/shards/I-of-N; N jobs on one machine or
@@ -38,14 +39,14 @@ def flags() -> dict[str, str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from trioman.options import add_options
-    from trioman.runtime.pretrained import SHIPPED
+    from trioman.runtime.pretrained import NONE, SHIPPED
 
     parser.add_argument("subject", metavar="SUBJECT", help="subject folder (docs/formats.md)")
     parser.add_argument("--avatar", required=True, help="avatar folder of this subject (trioman export avatar)")
-    parser.add_argument("--refiner", default=SHIPPED, metavar="ONNX|shipped|none",
+    parser.add_argument("--refiner", default=NONE, metavar="ONNX|shipped|none",
                         help="Refiner ONNX file; shipped: the package's (docs/models.md); none: the aligned pseudo-GT, "
                              "the render with real pixels carried through the body mesh, and per-pixel loss weights "
-                             "in DIR/weights (no model) (default shipped)")
+                             "in DIR/weights, no model: the best kind measured with what ships (default none)")
     parser.add_argument("--examiner", default=SHIPPED, metavar="ONNX|shipped|none",
                         help="Examiner ONNX file; shipped: the package's (with a Refiner); none: every candidate is "
                              "kept (one frame per candidate) (default shipped)")

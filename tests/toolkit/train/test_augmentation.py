@@ -311,8 +311,8 @@ def test_refined_training_at_frames_that_are_not_a_multiple_of_the_refiners(subj
 def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys):
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--refiner", "r.pt"]) == 1
     assert "--refiner: needs --augment" in capsys.readouterr().err
-    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "--refiner", "none", "--examiner",
-                 "shipped"]) == 1
+    assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "examined", "--refiner", "none",
+                 "--examiner", "shipped"]) == 1
     assert "error: --examiner: chooses among refined candidates; --refiner none gives the aligned kind" in capsys.readouterr().err
     assert main(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "refined", "--refiner",
                  str(tmp_path / "nope.pt")]) == 1
@@ -320,17 +320,18 @@ def test_cli_options_need_augment_and_existing_models(subject, tmp_path, capsys)
     assert not (tmp_path / "x").exists()  # nothing written before the inputs are checked
 
 
-def test_augment_alone_means_the_shipped_models_with_the_carried_mask(subject, tmp_path):
+def test_augment_alone_means_aligned_with_the_carried_mask_and_a_kind_with_models_the_shipped_ones(subject, tmp_path):
     from trioman.commands.train import augment_config
     from trioman.cli import build_parser
     from trioman.runtime.pretrained import shipped_path
 
     args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment"])
     cfg = augment_config(args)
-    assert (cfg.mode, cfg.mask, cfg.unknown_weight, cfg.align_sources) == ("examined", "carried", 0.0, 3)
-    assert (cfg.refiner, cfg.examiner) == (str(shipped_path("refiner")), str(shipped_path("examiner")))
-    args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "--refiner", "none"])
-    assert (augment_config(args).mode, augment_config(args).refiner) == ("aligned", None)
+    assert (cfg.mode, cfg.mask, cfg.unknown_weight, cfg.align_sources) == ("aligned", "carried", 0.0, 3)
+    assert (cfg.refiner, cfg.examiner) == (None, None)
+    args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "examined"])
+    assert (augment_config(args).refiner, augment_config(args).examiner) == (str(shipped_path("refiner")),
+                                                                             str(shipped_path("examiner")))
     args = build_parser().parse_args(["train", str(subject), "--out", str(tmp_path / "x"), "--augment", "coarse",
                                       "--augment-mask", "alpha", "--augment-sources", "1"])
     assert (augment_config(args).mask, augment_config(args).align_sources) == ("alpha", 1)
@@ -351,7 +352,7 @@ def test_a_refiner_keeps_the_carried_pixels_unless_told_not_to(subject, tmp_path
     assert augment_config(build_parser().parse_args(base + ["--augment", "refined", "--refiner", str(ref)])).keep_carried
     assert not augment_config(build_parser().parse_args(
         base + ["--augment", "refined", "--refiner", str(ref), "--no-augment-keep-carried"])).keep_carried
-    assert augment_config(build_parser().parse_args(base + ["--augment"])).keep_carried
-    assert not augment_config(build_parser().parse_args(base + ["--augment", "--refiner", "none"])).keep_carried
+    assert not augment_config(build_parser().parse_args(base + ["--augment"])).keep_carried
+    assert augment_config(build_parser().parse_args(base + ["--augment", "refined"])).keep_carried  # the shipped Refiner
     with pytest.raises(ValueError, match="^keep_carried: needs a Refiner"):
         augment_config(build_parser().parse_args(base + ["--augment", "aligned", "--augment-keep-carried"]))
