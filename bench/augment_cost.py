@@ -30,7 +30,7 @@ def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:
     from trioman.bench.common import machine
     from trioman.runtime.stages import lifetime_peak_rss_bytes, mib
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
-    from trioman.toolkit.train.augment_config import BEST, AugmentConfig
+    from trioman.toolkit.train.augment_config import ALONE, AugmentConfig
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import AUGMENT_JSON, train
 
@@ -41,7 +41,7 @@ def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:
         if not (subject / "subject.json").is_file():
             synthesize_subject(SynthConfig(seed=config.seed, size=size, frames=config.frames, coverage=0.33), subject,
                                overwrite=subject.exists(), progress=False)
-        augment = AugmentConfig(mode=BEST)  # what `--augment` alone runs
+        augment = AugmentConfig(mode=ALONE)  # what `--augment` alone runs
         seconds = {}
         for name, aug in (("plain", None), ("augmented", augment)):
             run = out / f"run_{size}_{name}"
@@ -59,8 +59,7 @@ def bench_augment_cost(config: AugmentCostBenchConfig) -> dict:
         print(f"bench augment-cost: {size} px: plain {seconds['plain']:.1f} s, augmented {seconds['augmented']:.1f} s "
               f"({ratio:.2f}x)", flush=True)
     return {"target": "augment-cost", "machine": machine(), "frames": config.frames, "iterations": config.iterations,
-            "augment": {k: v for k, v in dataclasses.asdict(augment).items() if k not in ("pose_sigma", "camera")}
-            | {k: Path(v).name for k in ("refiner", "examiner") if (v := getattr(augment, k))},
+            "augment": {k: v for k, v in dataclasses.asdict(augment).items() if k not in ("pose_sigma", "camera")},
             "rows": rows, "target_ratio": TARGET_RATIO, "peak_rss_mib": round(mib(lifetime_peak_rss_bytes()), 1)}
 
 

@@ -123,12 +123,12 @@ def _augmented_avatar(cfg: DemoConfig, out: Path, log: StageLog, lpips, progress
     the test split."""
     from trioman.runtime.outputs import remove_own
     from trioman.toolkit.evaluate import evaluate
-    from trioman.toolkit.train.augment_config import BEST, AugmentConfig
+    from trioman.toolkit.train.augment_config import ALONE, AugmentConfig
     from trioman.toolkit.train.loop import RUN_FOLDER, train
 
     run_aug = out / "run_augmented"
     remove_own(run_aug, RUN_FOLDER)
-    train_cfg = _quick_preset(cfg, augment=AugmentConfig(mode=BEST))
+    train_cfg = _quick_preset(cfg, augment=AugmentConfig(mode=ALONE))
     with log.stage("train augmented"):
         train(out / "subject", run_aug, train_cfg, progress=progress, lpips=lpips)
     with log.stage("eval augmented"):

@@ -17,10 +17,9 @@ from trioman.runtime.pseudo_kinds import KINDS, MASKS
 
 MODES = KINDS  # what a pseudo frame holds (runtime/pseudo_kinds.py)
 WITH_REFINER = ("refined", "examined")
-# what `--augment` alone runs: the best kind measured with what ships. The shipped Refiner and Examiner
-# (`--augment examined`) measured below it on the demo's subject (docs/models.md), so it is the kind without a model.
-BEST = "aligned"
-ALONE = "aligned"  # the best kind measured that needs no model (`--refiner none`)
+# what `--augment` alone runs: the best kind measured with what ships, the one without a model (`--refiner none`);
+# the shipped Refiner and Examiner (`--augment examined`) measured below it on the demo's subject (docs/models.md)
+ALONE = "aligned"
 
 
 def _texture(value: Any) -> str | None:
@@ -30,7 +29,7 @@ def _texture(value: Any) -> str | None:
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    mode: str = option("coarse", flag="--augment", choices=MODES, const=BEST, default_text="off; --augment "
+    mode: str = option("coarse", flag="--augment", choices=MODES, const=ALONE, default_text="off; --augment "
                        "alone: aligned, the best kind measured (docs/models.md)",
                        help="pseudo-GT frames made during training: the avatar's own renders at Generator poses and "
                             "cameras (coarse), with real pixels carried through the body mesh where known (aligned), "
@@ -48,9 +47,9 @@ class AugmentConfig:
                                 help="take the aligned reference's colour from a texture of this side fused from every "
                                      "training frame wherever its texels were seen (runtime/texture_fusion.py; 0: "
                                      "carried pixels only)")
-    refiner: str | None = option(None, metavar="RUN|CKPT|ONNX|none", default_text="the shipped one",
+    refiner: str | None = option(None, metavar="RUN|CKPT|ONNX|none", default_text="the shipped one with refined|examined",
                                  help="Refiner: train-refiner run, checkpoint or .onnx; none: no model, the aligned kind")
-    examiner: str | None = option(None, metavar="RUN|CKPT|ONNX|none", default_text="the shipped one",
+    examiner: str | None = option(None, metavar="RUN|CKPT|ONNX|none", default_text="the shipped one with examined",
                                   help="Examiner: train-examiner run, checkpoint or .onnx; none: every candidate kept "
                                        "(the refined kind)")
     per_frame: int | None = option(None, check=integer(1), default_text="2 with an Examiner, else 1",
