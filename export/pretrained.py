@@ -43,8 +43,10 @@ def _entry(report: dict, kind: str, where: Path) -> dict[str, Any]:
 
 def heldout_quality(onnx_dir: Path, triplets: Sequence[str | os.PathLike], batch: int = 8) -> dict[str, Any]:
     """The ONNX files of ``onnx_dir`` under onnxruntime on the test frames of held-out subjects' triplet files:
-    masked PSNR (white background) of the coarse render and of the refined frame against the real one, and the
-    Examiner's AUROC of real against coarse frames with the nearest-view training frame as reference."""
+    masked PSNR (white background) of the coarse render and of the refined frame against the real one (and, for a
+    Refiner of the "warp*" conditions, of its aligned input: what the aligned kind trains on, the bar the Refiner
+    must clear), and the Examiner's AUROC of real against coarse frames with the nearest-view training frame as
+    reference."""
     import torch
 
     from trioman.runtime.onnx_models import load_model
@@ -55,18 +57,21 @@ def heldout_quality(onnx_dir: Path, triplets: Sequence[str | os.PathLike], batch
 
     t = TripletSet.load(list(triplets)).evaluation("test")
     refiner, examiner = load_model(onnx_dir / "refiner.onnx", kind="refiner"), load_model(onnx_dir / "examiner.onnx", kind="examiner")
-    ref_in = t.aligned if refiner.conditions in ALIGNED_CONDITIONS else t.reference
+    aligned_in = refiner.conditions in ALIGNED_CONDITIONS
+    ref_in = t.aligned if aligned_in else t.reference
     refined = np.concatenate([refiner.refine(t.coarse[i:i + batch], reference=ref_in[i:i + batch], normal=t.normal[i:i + batch])
                               for i in range(0, len(t.gt), batch)])
     mask = torch.from_numpy(np.ascontiguousarray(t.mask[:, None]))
     psnr = {name: float(evaluate_batch(nchw(x), nchw(t.gt), mask)["psnr"].mean()) for name, x in
-            (("render", t.coarse), ("refined", refined))}
+            (("render", t.coarse), ("refined", refined)) + ((("aligned", t.aligned),) if aligned_in else ())}
     scores = [np.concatenate([examiner.score(x[i:i + 1], t.reference[i]) for i in range(len(x))]) for x in (t.gt, t.coarse)]
     labels = np.r_[np.ones(len(t.gt)), np.zeros(len(t.gt))]
-    return {"test_frames": len(t.gt), "subjects": [Path(p).stem for p in triplets],
-            "psnr_render_db": round(psnr["render"], 3), "psnr_refined_db": round(psnr["refined"], 3),
-            "refiner_gain_db": round(psnr["refined"] - psnr["render"], 3),
-            "examiner_auroc_real_vs_render": round(float(auroc(np.concatenate(scores), labels)), 4)}
+    out = {"test_frames": len(t.gt), "subjects": [Path(p).stem for p in triplets],
+           "psnr_render_db": round(psnr["render"], 3), "psnr_refined_db": round(psnr["refined"], 3),
+           "refiner_gain_db": round(psnr["refined"] - psnr["render"], 3)}
+    if aligned_in:
+        out.update(psnr_aligned_db=round(psnr["aligned"], 3), refiner_gain_over_aligned_db=round(psnr["refined"] - psnr["aligned"], 3))
+    return {**out, "examiner_auroc_real_vs_render": round(float(auroc(np.concatenate(scores), labels)), 4)}
 
 
 def ship_pretrained(onnx_dir: str | os.PathLike, dest: str | os.PathLike = rt.PRETRAINED_DIR,

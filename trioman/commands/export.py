@@ -123,7 +123,9 @@ def _run_pretrained(args: argparse.Namespace) -> int:
     if "heldout" in record:
         q = record["heldout"]
         print(f"export: held out ({q['test_frames']} test frames of {', '.join(q['subjects'])}): masked PSNR render "
-              f"{q['psnr_render_db']:.2f} dB, refined {q['psnr_refined_db']:.2f} dB ({q['refiner_gain_db']:+.2f}); "
+              f"{q['psnr_render_db']:.2f} dB, refined {q['psnr_refined_db']:.2f} dB ({q['refiner_gain_db']:+.2f})"
+              + (f", its aligned input {q['psnr_aligned_db']:.2f} dB (refined {q['refiner_gain_over_aligned_db']:+.2f})"
+                 if "psnr_aligned_db" in q else "") + "; "
               f"Examiner AUROC real vs render {q['examiner_auroc_real_vs_render']:.3f}")
     print(f"export: record {dest}/models.json; the model card is docs/models.md")
     return 0
