@@ -12,7 +12,7 @@ from typing import Any
 from trioman.bench.common import check_names, check_path
 from trioman.bench.config import OUT
 from trioman.runtime.options import check_options, integer, number, option
-from trioman.toolkit.model_configs import REFINER_SIZE_NAMES
+from trioman.toolkit.corpus_training_options import REFINER_SIZE_NAMES
 from trioman.toolkit.synth.config import STYLES
 from trioman.toolkit.train.augment_config import AugmentConfig
 

@@ -11,7 +11,7 @@ from typing import ClassVar
 
 from trioman.bench.common import check_names, check_path
 from trioman.runtime.options import check_options, integer, number, option
-from trioman.toolkit.model_configs import BACKBONES, CORPUS_VARIANTS, REFINER_SIZE_NAMES
+from trioman.toolkit.corpus_training_options import BACKBONES, CORPUS_VARIANTS, REFINER_SIZE_NAMES
 from trioman.toolkit.synth.config import STYLES
 from trioman.toolkit.train.config import PRESETS
 
@@ -174,7 +174,7 @@ class ScaleBenchConfig(BenchConfig):
     seed: int = option(0, check=integer(0), help="the Refiner's initial weights and the triplets")
 
     def check(self) -> None:
-        from trioman.toolkit.model_training import REFINER_SIZES
+        from trioman.toolkit.corpus.training import REFINER_SIZES
         from trioman.toolkit.refiner import RefinerConfig
 
         step = RefinerConfig(conditions="tex+geo", **REFINER_SIZES["compact"]).total_downsample

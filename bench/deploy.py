@@ -71,7 +71,7 @@ def bench_refiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, threads
     optimisation level, int8, fp16; a missing one noted as rejected) on ``frames`` (TripletSet.evaluation):
     ms per frame (batch 1, onnxruntime ``threads``), max abs error against torch, PSNR against the GT."""
     from trioman.runtime.onnx_models import RefinerModel
-    from trioman.toolkit.model_training import refiner_batch
+    from trioman.toolkit.corpus.training import refiner_batch
     from trioman.toolkit.refiner import load_refiner, refiner_inputs
 
     model = load_refiner(ckpt)
@@ -104,7 +104,7 @@ def bench_examiner_rows(ckpt: Path, onnx_dir: Path, frames, repeats: int, thread
     pairs of ``frames``: max abs score error against torch and keep/drop agreement with it."""
     from trioman.runtime.onnx_models import ExaminerModel
     from trioman.toolkit.examiner import load_examiner
-    from trioman.toolkit.model_training import nchw
+    from trioman.toolkit.corpus.training import nchw
 
     model = load_examiner(ckpt)
     # pairs: real (I^T, reference) and coarse (I_c^T, reference), as in the AUROC of bench models
@@ -166,9 +166,9 @@ def bench_deploy(config: DeployBenchConfig) -> dict:
     Inputs come from ``trioman bench models`` (its corpus, its tex+geo Refiner and its Examiner runs).
     """
     from trioman.export.onnx_models import export_onnx
-    from trioman.toolkit.corpus import triplet_paths
+    from trioman.toolkit.corpus.build import triplet_paths
     from trioman.toolkit.loops.checkpoint import model_checkpoint
-    from trioman.toolkit.triplets import TripletSet
+    from trioman.toolkit.corpus.triplets import TripletSet
 
     corpus, models = Path(config.corpus), Path(config.models)
     ckpts = {}

@@ -79,7 +79,7 @@ def _cost_of_fitting(fitted, truth, stem: Path, iterations: int) -> dict:
     is evaluated on its own test frames (held-out video frames: the fitted ones at fitted poses, as a user's are; the
     refined run's at the poses it corrected, from no test pixel). -> masked test PSNRs and the differences."""
     from trioman.runtime.formats import save_subject
-    from trioman.toolkit.corpus import finished
+    from trioman.toolkit.corpus.build import finished
     from trioman.toolkit.evaluate import evaluate
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train

@@ -12,9 +12,9 @@ import torch
 
 from trioman.bench.common import batched, best_time, mean_metrics
 from trioman.bench.config import ModelsBenchConfig
-from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
+from trioman.toolkit.corpus.build import CORPUS_JSON, CorpusConfig, build_corpus, triplet_paths
 from trioman.toolkit.examiner import auroc, pair_auroc
-from trioman.toolkit.model_training import (
+from trioman.toolkit.corpus.training import (
     FitConfig,
     examiner_batch,
     fit_examiner,
@@ -23,7 +23,7 @@ from trioman.toolkit.model_training import (
     refiner_batch,
 )
 from trioman.toolkit.refiner import CONDITIONS, refiner_inputs
-from trioman.toolkit.triplets import TripletSet
+from trioman.toolkit.corpus.triplets import TripletSet
 
 
 def bench_models(config: ModelsBenchConfig) -> dict:

@@ -38,10 +38,10 @@ def _measure(size: int, batch: int, steps: int, seed: int) -> dict:
     import torch.distributed as dist
 
     from trioman.toolkit.distributed import current, data_parallel
-    from trioman.toolkit.model_training import REFINER_SIZES, FitConfig, SampleStream, refiner_batch
+    from trioman.toolkit.corpus.training import REFINER_SIZES, FitConfig, SampleStream, refiner_batch
     from trioman.toolkit.refiner import RefinerConfig, create_refiner
     from trioman.toolkit.refiner.loop import train_step
-    from trioman.toolkit.triplets import TripletSet
+    from trioman.toolkit.corpus.triplets import TripletSet
 
     ranks = current()
     rng = np.random.default_rng(seed)

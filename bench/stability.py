@@ -384,7 +384,7 @@ def model_training_rows(out: Path, iterations: int, batch: int = 4) -> list[dict
     from trioman.runtime.outputs import remove_own
     from trioman.toolkit.loops.checkpoint import LOOP_RUN
     from trioman.toolkit.examiner import ExaminerTrainConfig, examiner_loop
-    from trioman.toolkit.model_training import examiner_batch, refiner_batch
+    from trioman.toolkit.corpus.training import examiner_batch, refiner_batch
     from trioman.toolkit.refiner import RefinerTrainConfig, refiner_loop
 
     frames = synthetic_frames(batch, (MODEL_SIZE, MODEL_SIZE), seed=0)

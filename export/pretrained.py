@@ -52,8 +52,8 @@ def heldout_quality(onnx_dir: Path, triplets: Sequence[str | os.PathLike], batch
     from trioman.runtime.onnx_models import load_model
     from trioman.toolkit.examiner import auroc
     from trioman.toolkit.metrics import evaluate_batch
-    from trioman.toolkit.model_training import nchw
-    from trioman.toolkit.triplets import TripletSet
+    from trioman.toolkit.corpus.training import nchw
+    from trioman.toolkit.corpus.triplets import TripletSet
 
     t = TripletSet.load(list(triplets)).evaluation("test")
     refiner, examiner = load_model(onnx_dir / "refiner.onnx", kind="refiner"), load_model(onnx_dir / "examiner.onnx", kind="examiner")

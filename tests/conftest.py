@@ -69,10 +69,10 @@ def tiny_run(tmp_path_factory):
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory):
     """A fabricated corpus: two training subjects and one held out, random triplet files
-    (tests.toolkit.factories.fake_triplets; tests/toolkit/test_model_training.py, tests/toolkit/refiner/test_sd_turbo.py,
+    (tests.toolkit.factories.fake_triplets; tests/toolkit/corpus/test_training.py, tests/toolkit/refiner/test_sd_turbo.py,
     tests/bench/test_deploy.py)."""
     from tests.toolkit.factories import fake_triplets
-    from trioman.toolkit.corpus import CORPUS_JSON
+    from trioman.toolkit.corpus.build import CORPUS_JSON
 
     root = tmp_path_factory.mktemp("corpus")
     subjects = [{"name": "s00", "role": "train"}, {"name": "s01", "role": "train"}, {"name": "s02", "role": "heldout"}]

@@ -182,14 +182,14 @@ def test_library_and_command_defaults_are_one_value():
     from trioman.export.config import AvatarExportOptions, OnnxExportOptions
     from trioman.toolkit.train.augment_config import AugmentConfig
     from trioman.toolkit.evaluate_config import EvalOptions
-    from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
+    from trioman.toolkit.corpus_training_options import TrainExaminerOptions, TrainRefinerOptions
     from trioman.runtime.animate import AnimateOptions, RenderOptions
     from trioman.runtime.augment_options import AugmentOptions
     from trioman.runtime.inspect import InspectOptions
     from trioman.runtime.viewer.config import TimingOptions, ViewerConfig
     from trioman.toolkit.importers.options import ExAvatarOptions, SmplxFitsOptions
     from trioman.toolkit.train.config import TrainConfig
-    from trioman.toolkit.triplets_config import TripletsOptions
+    from trioman.toolkit.corpus.triplets_config import TripletsOptions
 
     for cmd_name, specs in (("train", declared(TrainConfig) + declared(AugmentConfig)),
                             *((f"bench {target}", declared(cls)) for target, cls in _target_configs().items()),
@@ -245,8 +245,8 @@ def test_the_runtime_functions_default_to_their_commands_options():
 
 def test_the_toolkit_functions_default_to_their_commands_options():
     pytest.importorskip("torch")
-    from trioman.toolkit.triplets import build_draw_triplets
-    from trioman.toolkit.triplets_config import TripletsOptions
+    from trioman.toolkit.corpus.triplets import build_draw_triplets
+    from trioman.toolkit.corpus.triplets_config import TripletsOptions
 
     _defaults_agree(build_draw_triplets, TripletsOptions)
     from trioman.toolkit.importers.exavatar import BodyConfig, import_exavatar
@@ -301,8 +301,8 @@ def test_the_model_training_functions_default_to_their_commands_options():
     import inspect
 
     pytest.importorskip("torch")
-    from trioman.toolkit.model_configs import BACKBONES, REFINER_SIZE_NAMES, TrainExaminerOptions, TrainRefinerOptions
-    from trioman.toolkit.model_training import REFINER_SIZES, FitConfig, examiner_fit, fit_examiner, fit_refiner, refiner_fit
+    from trioman.toolkit.corpus_training_options import BACKBONES, REFINER_SIZE_NAMES, TrainExaminerOptions, TrainRefinerOptions
+    from trioman.toolkit.corpus.training import REFINER_SIZES, FitConfig, examiner_fit, fit_examiner, fit_refiner, refiner_fit
     from trioman.toolkit.refiner.backbones import registered_backbones
 
     assert tuple(REFINER_SIZES) == REFINER_SIZE_NAMES and tuple(sorted(BACKBONES)) == registered_backbones()

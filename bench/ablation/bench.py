@@ -16,7 +16,7 @@ from trioman.bench.ablation.plan import needed_models, plan_jobs, run_iterations
 from trioman.bench.ablation.report import bar_charts, summarise, variant_grid
 from trioman.bench.ablation.subjects import fit_error, regime_subject
 from trioman.bench.ablation_config import AblationBenchConfig
-from trioman.toolkit.corpus import CORPUS_JSON, CorpusConfig, build_corpus, finished, triplet_paths
+from trioman.toolkit.corpus.build import CORPUS_JSON, CorpusConfig, build_corpus, finished, triplet_paths
 from trioman.toolkit.lpips import load_lpips_or_say_why
 
 

@@ -21,14 +21,14 @@ from trioman.runtime.preview import contact_sheet
 from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
 from trioman.toolkit.evaluate import evaluate, load_run
 from trioman.toolkit.loops.checkpoint import latest_checkpoint
-from trioman.toolkit.model_training import nchw, refiner_batch
+from trioman.toolkit.corpus.training import nchw, refiner_batch
 from trioman.toolkit.refiner import load_refiner
 from trioman.toolkit.synth.subject import TruthRenderer
 from trioman.toolkit.train.augment_config import AugmentConfig
 from trioman.toolkit.train.augmentation import render_candidate
 from trioman.toolkit.train.loop import AUGMENT_JSON
 from trioman.toolkit.train.augment_models import load_pseudo_examiner, load_pseudo_refiner
-from trioman.toolkit.triplets import TripletSet
+from trioman.toolkit.corpus.triplets import TripletSet
 
 FUSED_TEXTURE = 256  # texels a side of the fused texture's row in the frame-level table (AlignConfig.texture)
 

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from trioman.bench.ablation_config import AblationBenchConfig
-from trioman.toolkit.model_training import FitConfig, fit_examiner, fit_refiner
+from trioman.toolkit.corpus.training import FitConfig, fit_examiner, fit_refiner
 
 
 def _model_run(out: Path, key: str) -> Path:

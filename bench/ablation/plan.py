@@ -10,7 +10,7 @@ from pathlib import Path
 
 from trioman.bench.ablation.jobs import Job
 from trioman.bench.ablation_config import ALL_VARIANTS, LEVERS, AblationPlan
-from trioman.toolkit.corpus import finished
+from trioman.toolkit.corpus.build import finished
 from trioman.toolkit.train.config import preset
 
 # AugmentConfig settings of a variant beyond its mode and Refiner condition.

@@ -303,7 +303,7 @@ def ablation_markdown(r: dict) -> str:
     lines += ["## Do the Refiners use their conditions?", "",
               "Masked PSNR of held-out test triplets (coarse render at the test pose; tex+geo: the nearest-view training "
               "frame as reference; warp+geo: real pixels of other training frames carried to the test pose, "
-              "toolkit/triplets.py):", "", "| input | tex+geo | warp+geo |", "|---|---|---|"]
+              "toolkit/corpus/triplets.py):", "", "| input | tex+geo | warp+geo |", "|---|---|---|"]
     checks = r["condition_check"]
     checks = {"tex+geo": checks} if "true" in checks else checks  # reports written before warp+geo hold one check
 

@@ -207,7 +207,7 @@ def export_onnx(refiner: Any = None, examiner: Any = None, out: str | os.PathLik
     }
     triplets = None
     if calibration:
-        from trioman.toolkit.triplets import TripletSet
+        from trioman.toolkit.corpus.triplets import TripletSet
 
         say(f"reading {len(calibration)} triplet file(s)")
         triplets = TripletSet.load(calibration)

@@ -85,7 +85,7 @@ def load_data(calibration: Sequence[str | os.PathLike] | None, size: tuple[int, 
                     {"source": "synthetic", "note": "no calibration triplets given: int8 calibration and gates used "
                      "synthetic random images, not real frames", "calibration_frames": calibration_frames,
                      "gate_frames": gate_frames})
-    from trioman.toolkit.triplets import TripletSet
+    from trioman.toolkit.corpus.triplets import TripletSet
 
     paths = [str(Path(p)) for p in calibration]
     data = triplets if triplets is not None else TripletSet.load(paths)

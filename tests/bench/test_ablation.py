@@ -13,7 +13,7 @@ from trioman.cli import main  # noqa: E402
 from trioman.bench.ablation import LABELS, ablation_markdown, summarise  # noqa: E402
 from trioman.bench.ablation.report import _frame_target  # noqa: E402
 from trioman.bench.ablation_config import LEVERS, VARIANTS, AblationPlan  # noqa: E402
-from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
+from trioman.toolkit.corpus.build import CorpusConfig, build_corpus  # noqa: E402
 
 
 @pytest.fixture(scope="module")

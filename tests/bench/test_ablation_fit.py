@@ -14,7 +14,7 @@ pytest.importorskip("anny")
 from trioman.bench.ablation import AblationPlan, regime_subject  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.runtime.formats import load_subject  # noqa: E402
-from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
+from trioman.toolkit.corpus.build import CorpusConfig, build_corpus  # noqa: E402
 from trioman.toolkit.fit.config import FitConfig  # noqa: E402
 
 skip_without_person_models()

@@ -16,9 +16,9 @@ from trioman.bench.deploy import (  # noqa: E402
     bench_examiner_rows, bench_refiner_rows, bench_renderer_rows, deploy_markdown, scatter_plot,
 )
 from trioman.bench.models import ModelsBenchConfig, bench_models  # noqa: E402
-from trioman.toolkit.corpus import triplet_paths  # noqa: E402
+from trioman.toolkit.corpus.build import triplet_paths  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint  # noqa: E402
-from trioman.toolkit.triplets import TripletSet  # noqa: E402
+from trioman.toolkit.corpus.triplets import TripletSet  # noqa: E402
 
 
 @pytest.fixture(scope="module")

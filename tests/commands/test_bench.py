@@ -68,4 +68,4 @@ def test_the_library_takes_no_parsed_options():
         assert paths, module
         for path in paths:
             assert "argparse" not in path.read_text(), path
-    assert "argparse" not in (ROOT / "bench" / "demo.py").read_text()
+    assert "argparse" not in (ROOT / "trioman" / "demo.py").read_text()

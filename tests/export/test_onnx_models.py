@@ -24,11 +24,11 @@ from trioman.export import onnx_models as om  # noqa: E402
 from trioman.export.onnx_models import jobs  # noqa: E402
 from trioman.runtime.onnx_models import ExaminerModel, RefinerModel, load_model, read_metadata  # noqa: E402
 from trioman.toolkit.examiner import ExaminerConfig, ExaminerTrainConfig, create_examiner, examiner_loop, load_examiner  # noqa: E402
-from trioman.toolkit.model_training import examiner_batch, refiner_batch  # noqa: E402
+from trioman.toolkit.corpus.training import examiner_batch, refiner_batch  # noqa: E402
 from trioman.toolkit.refiner import RefinerConfig, RefinerTrainConfig, create_refiner, load_refiner, refiner_loop  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.augment_models import TorchRefiner  # noqa: E402
-from trioman.toolkit.triplets import TripletSet  # noqa: E402
+from trioman.toolkit.corpus.triplets import TripletSet  # noqa: E402
 
 S = 32
 REFINER_CFG = RefinerConfig(image_size=S, latent_channels=4, latent_downsample=4, vae_widths=(8, 16, 16), unet_widths=(16, 16),

@@ -17,12 +17,12 @@ torch = pytest.importorskip("torch")
 
 from tests.toolkit.factories import fake_triplets  # noqa: E402
 from trioman.cli import main  # noqa: E402
-from trioman.toolkit.corpus import CORPUS_JSON  # noqa: E402
+from trioman.toolkit.corpus.build import CORPUS_JSON  # noqa: E402
 from trioman.toolkit.distributed import Ranks, process_group  # noqa: E402
 from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, find_lpips_weights  # noqa: E402
-from trioman.toolkit.model_training import FitConfig, SampleStream, fit_examiner, fit_refiner  # noqa: E402
+from trioman.toolkit.corpus.training import FitConfig, SampleStream, fit_examiner, fit_refiner  # noqa: E402
 from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint  # noqa: E402
-from trioman.toolkit.triplets import TripletSet  # noqa: E402
+from trioman.toolkit.corpus.triplets import TripletSet  # noqa: E402
 
 BATCH = 2  # per rank; one process trains on 2 x BATCH
 SGD_LR = 0.05

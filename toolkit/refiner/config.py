@@ -6,7 +6,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from trioman.toolkit.model_configs import CONDITIONS  # noqa: F401  (the Refiner's conditions, declared there)
+from trioman.toolkit.corpus_training_options import CONDITIONS  # noqa: F401  (the Refiner's conditions, declared there)
 
 VIEW_COUNT = {"none": 1, "tex": 2, "tex+geo": 3, "warp": 2, "warp+geo": 3}
 ALIGNED_CONDITIONS = ("warp", "warp+geo")

@@ -1,4 +1,4 @@
-"""``trioman demo``: the whole pipeline on the embedded synthetic subject (trioman.bench.demo).
+"""``trioman demo``: the whole pipeline on the embedded synthetic subject (trioman.demo).
 
 Module contract (trioman/cli.py): standard-library imports only at module level.
 """
@@ -9,7 +9,7 @@ import argparse
 
 
 def _configs():
-    from trioman.bench.demo import DemoConfig
+    from trioman.demo import DemoConfig
 
     return (DemoConfig,)
 
@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from trioman.bench.demo import DemoConfig, run_demo
+    from trioman.demo import DemoConfig, run_demo
     from trioman.options import given
 
     run_demo(DemoConfig(**given(DemoConfig, args), progress=not args.quiet))

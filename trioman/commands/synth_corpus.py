@@ -1,5 +1,5 @@
 """``trioman synth-corpus --out DIR``: synthetic subjects, baseline avatars and triplets for the
-Refiner and Examiner (toolkit/corpus.py). Resumes where an interrupted build stopped.
+Refiner and Examiner (toolkit/corpus/build.py). Resumes where an interrupted build stopped.
 
 ``--shard I/N`` builds only the subjects of shard I of N (N jobs, on one machine or many sharing DIR);
 ``--merge`` with the same settings then checks every shard and writes corpus.json (docs/scaling.md).
@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 def _configs():
-    from trioman.toolkit.corpus_config import CorpusConfig
+    from trioman.toolkit.corpus.config import CorpusConfig
 
     return (CorpusConfig,)
 
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
     from trioman.options import given
     from trioman.runtime.shards import Shard
-    from trioman.toolkit.corpus import build_corpus, merge_corpus
+    from trioman.toolkit.corpus.build import build_corpus, merge_corpus
 
     if args.shard is not None and args.merge:
         raise ValueError("--merge: runs after the --shard jobs, not with --shard")

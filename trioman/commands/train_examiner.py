@@ -1,5 +1,5 @@
 """``trioman train-examiner --corpus DIR --out RUN``: train the Examiner on a synthetic corpus's
-training subjects with the paper's pair targets (toolkit/model_training.py); resumes a run folder.
+training subjects with the paper's pair targets (toolkit/corpus/training.py); resumes a run folder.
 ``--pairing paper`` draws the paper's 1/2 identical, 1/4 real, 1/4 coarse pairs at random; the
 default "contrast" gives every sample its real and its coarse pair (toolkit/examiner/pairs.py).
 ``--validation-subjects N`` (default 1) holds the last N training subjects out and keeps the weights
@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 
 def _configs():
-    from trioman.toolkit.model_configs import TrainExaminerOptions
+    from trioman.toolkit.corpus_training_options import TrainExaminerOptions
 
     return (TrainExaminerOptions,)
 
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from trioman.options import given
     from trioman.toolkit.distributed import process_group
-    from trioman.toolkit.model_training import examiner_fit, fit_examiner
+    from trioman.toolkit.corpus.training import examiner_fit, fit_examiner
     from trioman.toolkit.loops.checkpoint import ConfigMismatch
 
     (options,) = _configs()

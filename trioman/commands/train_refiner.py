@@ -1,5 +1,5 @@
 """``trioman train-refiner --corpus DIR --out RUN``: train the Refiner on a synthetic corpus's training
-subjects (toolkit/model_training.py); resumes a run folder that has checkpoints. Under
+subjects (toolkit/corpus/training.py); resumes a run folder that has checkpoints. Under
 ``torchrun --nproc-per-node N -m trioman train-refiner ...`` the N processes train one run data-parallel
 (docs/scaling.md): --batch is per process, rank 0 writes the run folder."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 
 def _configs():
-    from trioman.toolkit.model_configs import TrainRefinerOptions
+    from trioman.toolkit.corpus_training_options import TrainRefinerOptions
 
     return (TrainRefinerOptions,)
 
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from trioman.options import given
     from trioman.toolkit.distributed import process_group
-    from trioman.toolkit.model_training import fit_refiner, refiner_fit
+    from trioman.toolkit.corpus.training import fit_refiner, refiner_fit
     from trioman.toolkit.lpips import NOT_FOUND_MESSAGE, load_lpips
     from trioman.toolkit.loops.checkpoint import ConfigMismatch
 
@@ -61,7 +61,7 @@ def resume_hint(args: argparse.Namespace, cfg, err) -> str:
     """What resumes the run whose Refiner (``err``: a ConfigMismatch) differs from the one these options build:
     the command with the options that build the run's Refiner, when some do."""
     from trioman.commands import command_line
-    from trioman.toolkit.model_training import REFINER_SIZES
+    from trioman.toolkit.corpus.training import REFINER_SIZES
     from trioman.toolkit.refiner import RefinerConfig
 
     run = err.run_config

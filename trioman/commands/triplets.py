@@ -1,5 +1,5 @@
 """``trioman triplets RUN --out FILE``: GT, coarse render, body normal map and aligned reference for every
-frame of a trained run's subject (toolkit/triplets.py), the Refiner's and Examiner's training data; with
+frame of a trained run's subject (toolkit/corpus/triplets.py), the Refiner's and Examiner's training data; with
 ``--draws N`` (synthetic subjects) N Generator draws per training frame with the truth there instead."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import argparse
 
 
 def _configs():
-    from trioman.toolkit.triplets_config import TripletsOptions
+    from trioman.toolkit.corpus.triplets_config import TripletsOptions
 
     return (TripletsOptions,)
 
@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from trioman.options import given
-    from trioman.toolkit.triplets import build_draw_triplets, build_triplets
+    from trioman.toolkit.corpus.triplets import build_draw_triplets, build_triplets
 
     (options,) = _configs()
     cfg = options(**given(options, args))

@@ -10,7 +10,7 @@ import shutil
 from pathlib import Path
 
 from trioman.runtime.shards import SHARDS_DIR, Shard, check_shards, shard_run
-from trioman.toolkit.corpus_config import CorpusConfig
+from trioman.toolkit.corpus.config import CorpusConfig
 
 CORPUS_JSON = "corpus.json"
 
@@ -46,7 +46,7 @@ def _build_subject(root: Path, cfg: CorpusConfig, i: int, progress: bool) -> Non
     from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
     from trioman.toolkit.train.config import preset
     from trioman.toolkit.train.loop import train
-    from trioman.toolkit.triplets import TRIPLETS_VERSION, build_triplets, triplets_version
+    from trioman.toolkit.corpus.triplets import TRIPLETS_VERSION, build_triplets, triplets_version
 
     name, role = cfg.names[i]
     subject, run, trip = _paths(root, cfg, name, role)
@@ -82,7 +82,7 @@ def build_corpus(root: str | Path, cfg: CorpusConfig, progress: bool = True, sha
 
     The paper trains the Refiner and Examiner on 17 X-Humans subjects and evaluates on 3 others; here:
     ``cfg.train_subjects`` synthetic subjects and ``cfg.heldout_subjects``, each with a baseline avatar and a
-    triplet file (toolkit/triplets.py). Baselines of training subjects are trained on ``cfg.baseline_frames``:
+    triplet file (toolkit/corpus/triplets.py). Baselines of training subjects are trained on ``cfg.baseline_frames``:
     "all" frames (the paper's choice: coarse frames carry reconstruction error only) or "subset" (every
     ``subset_stride``-th frame, so most coarse frames carry real novel-pose error). Held-out subjects'
     baselines see their train split only, and evaluation uses their test frames (novel poses and views).

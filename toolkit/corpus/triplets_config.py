@@ -1,4 +1,4 @@
-"""What ``trioman triplets`` builds (toolkit/triplets.py), each setting with its option (runtime/options.py): the
+"""What ``trioman triplets`` builds (toolkit/corpus/triplets.py), each setting with its option (runtime/options.py): the
 library's defaults and the command's are these fields. Standard-library imports only: the command builds its
 parser from these fields."""
 

@@ -1,6 +1,11 @@
-"""What ``trioman train-refiner`` and ``trioman train-examiner`` train (toolkit/model_training.py), each setting with
+"""What ``trioman train-refiner`` and ``trioman train-examiner`` train (toolkit/corpus/training.py), each setting with
 its option (runtime/options.py): the library's defaults and the commands' are these fields. Standard-library
 imports only: the commands build their parsers from these fields.
+
+It sits beside toolkit/corpus/, not in it, and not in toolkit/refiner/: the Refiner's config imports ``CONDITIONS``
+from here, and toolkit/corpus/ imports the Refiner (training) and, through its baselines, the avatar's training, which
+imports the Refiner too (toolkit's subpackages import one another without a cycle: tests/toolkit/loops/test_layering.py);
+toolkit/refiner/'s ``__init__`` imports torch.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ from trioman.runtime.options import check_options, integer, option
 # normal map. "warp" / "warp+geo" take instead of the real frame the geometry-aligned reference
 # (runtime/aligned.py) and refine it: views (aligned, coarse[, normal]) (docs/augmentation.md, "Refiner conditions").
 CONDITIONS = ("none", "tex", "tex+geo", "warp", "warp+geo")
-REFINER_SIZE_NAMES = ("compact", "default")  # model_training.REFINER_SIZES
+REFINER_SIZE_NAMES = ("compact", "default")  # corpus.training.REFINER_SIZES
 BACKBONES = ("scratch", "sd-turbo")  # refiner.backbones.registered_backbones()
 CORPUS_VARIANTS = ("all", "subset")
 
@@ -66,7 +71,7 @@ class TrainExaminerOptions:
     device: str = option("cpu", choices=("cpu", "cuda"),
                          help="cpu or cuda (under torchrun each process takes the GPU of its local rank)")
     mixed_precision: str = option("no", choices=("no", "bf16"), help="bf16 autocast (CUDA)")
-    lr: float = 3e-4  # the Examiner's learning rate (model_training.FitConfig's is the Refiner's)
+    lr: float = 3e-4  # the Examiner's learning rate (corpus.training.FitConfig's is the Refiner's)
 
     def __post_init__(self) -> None:
         check_options(self)

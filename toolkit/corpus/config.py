@@ -1,4 +1,4 @@
-"""What ``trioman synth-corpus`` builds (toolkit/corpus.py), each setting with its option (runtime/options.py).
+"""What ``trioman synth-corpus`` builds (toolkit/corpus/build.py), each setting with its option (runtime/options.py).
 Standard-library imports only: the command builds its parser from these fields."""
 
 from __future__ import annotations

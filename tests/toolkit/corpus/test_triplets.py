@@ -13,7 +13,7 @@ from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noq
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
 from trioman.toolkit.train.data import load_frames  # noqa: E402
 from trioman.toolkit.train.loop import train  # noqa: E402
-from trioman.toolkit.triplets import TRIPLETS_VERSION, TripletSet, build_triplets, triplets_version, view_yaw  # noqa: E402
+from trioman.toolkit.corpus.triplets import TRIPLETS_VERSION, TripletSet, build_triplets, triplets_version, view_yaw  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def test_aligned_references_come_from_other_training_frames(triplet_file):
     (0 < |k| <= ALIGN_K), never T; carried pixels only on the body, and close to T's own image there
     (the subject's texture is painted on the body, so carried real pixels are near the truth)."""
     from trioman.runtime.formats.common import load_npz
-    from trioman.toolkit.triplets import ALIGN_K
+    from trioman.toolkit.corpus.triplets import ALIGN_K
 
     path, subject = triplet_file
     a = load_npz(path)
@@ -111,7 +111,7 @@ def test_triplets_without_aligned_references_still_load(triplet_file, tmp_path):
     import torch
 
     from trioman.runtime.formats.common import load_npz
-    from trioman.toolkit.model_training import refiner_batch
+    from trioman.toolkit.corpus.training import refiner_batch
     from trioman.toolkit.refiner import refiner_inputs
 
     a = load_npz(triplet_file[0])
@@ -132,7 +132,7 @@ def test_draw_triplets_hold_the_truth_at_generator_draws(triplet_file, tmp_path)
     """Triplets at Generator draws: the truth there (the subject's own renderer), the avatar's render, the aligned
     reference from the draw's own source frame; every row a training row naming its source frame."""
     from trioman.runtime.formats.common import load_npz
-    from trioman.toolkit.triplets import build_draw_triplets
+    from trioman.toolkit.corpus.triplets import build_draw_triplets
 
     path, subject = triplet_file
     run = path.parent / "run"

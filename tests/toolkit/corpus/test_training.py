@@ -12,8 +12,8 @@ torch = pytest.importorskip("torch")
 from tests.toolkit.factories import S  # noqa: E402
 from trioman.cli import main  # noqa: E402
 from trioman.bench.models import ModelsBenchConfig, bench_models, models_markdown  # noqa: E402
-from trioman.toolkit.model_training import FitConfig, random_crop  # noqa: E402
-from trioman.toolkit.triplets import TripletSet  # noqa: E402
+from trioman.toolkit.corpus.training import FitConfig, random_crop  # noqa: E402
+from trioman.toolkit.corpus.triplets import TripletSet  # noqa: E402
 
 
 def test_random_crop_takes_one_window_per_sample(corpus):
@@ -66,7 +66,7 @@ def test_train_commands_and_bench_models(corpus, tmp_path):
 
 def test_training_on_triplet_files_at_another_size(corpus, tmp_path):
     """Models train on a list of triplet files (one subject's) and the Examiner on resized frames."""
-    from trioman.toolkit.model_training import fit_examiner, training_triplets
+    from trioman.toolkit.corpus.training import fit_examiner, training_triplets
 
     files = [corpus / "triplets" / "all" / "s00.npz"]
     assert training_triplets(files) == files
@@ -84,7 +84,7 @@ def test_training_on_triplet_files_at_another_size(corpus, tmp_path):
 
 
 def test_fit_records_written_before_a_field_was_added_still_match(tmp_path):
-    from trioman.toolkit.model_training import _same_fit
+    from trioman.toolkit.corpus.training import _same_fit
 
     new = dataclasses.asdict(FitConfig(steps=3))
     old = {k: v for k, v in new.items() if k != "image_size"}
@@ -92,7 +92,7 @@ def test_fit_records_written_before_a_field_was_added_still_match(tmp_path):
 
 
 def test_resuming_a_run_to_more_steps_keeps_its_total_wall_time(corpus, tmp_path):
-    from trioman.toolkit.model_training import _earlier_seconds, fit_examiner
+    from trioman.toolkit.corpus.training import _earlier_seconds, fit_examiner
 
     fit = FitConfig(steps=2, batch=2, crop=None)
     _, first = fit_examiner(corpus, tmp_path / "ex", fit=fit)
@@ -111,7 +111,7 @@ def test_examiner_keeps_the_step_validated_best_on_held_out_training_subjects(co
     """The last training subject is held out; every validate_every steps its AUROC is recorded and the
     model, fit.json and run/selected.pt (what export and bench deploy load) name the best step."""
     from trioman.toolkit.examiner import load_examiner, pair_auroc
-    from trioman.toolkit.model_training import examiner_batch, fit_examiner
+    from trioman.toolkit.corpus.training import examiner_batch, fit_examiner
     from trioman.toolkit.loops.checkpoint import latest_checkpoint, load_checkpoint, model_checkpoint
 
     run = tmp_path / "ex"
@@ -140,7 +140,7 @@ def _one_line_error(capsys) -> str:
 def test_a_resume_with_another_crop_names_the_fields_and_the_command(corpus, tmp_path, capsys, monkeypatch):
     """Issue 26 (minor): a resume refused for a changed --crop dumped both whole configs."""
     from trioman.toolkit.examiner import examiner_config
-    from trioman.toolkit.model_training import REFINER_SIZES
+    from trioman.toolkit.corpus.training import REFINER_SIZES
     from trioman.toolkit.refiner import RefinerConfig
     from trioman.toolkit.loops.checkpoint import save_checkpoint
 

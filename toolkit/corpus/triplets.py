@@ -20,7 +20,7 @@ from trioman.runtime.formats.common import FormatError, load_npz
 from trioman.runtime.outputs import atomic_path, check_not_input
 from trioman.runtime.normal_map import body_normal_map
 from trioman.runtime.rotations import axis_angle_to_matrix
-from trioman.toolkit.triplets_config import TripletsOptions
+from trioman.toolkit.corpus.triplets_config import TripletsOptions
 
 TRIPLETS_VERSION = 2
 _ARRAYS = ("meta", "gt", "mask", "coarse", "normal", "frame", "split", "sequence", "view_yaw")

@@ -18,13 +18,13 @@ import numpy as np
 import torch
 
 from trioman.runtime.outputs import FolderKind, atomic_write_text
-from trioman.toolkit.corpus import triplet_paths
+from trioman.toolkit.corpus.build import triplet_paths
 from trioman.toolkit.distributed import Ranks, barrier, current, torch_device
 from trioman.toolkit.examiner import ExaminerBatch, ExaminerTrainConfig, create_examiner, examiner_loop, pair_auroc
 from trioman.toolkit.refiner import RefinerBatch, RefinerConfig, RefinerTrainConfig, create_refiner, refiner_loop
 from trioman.toolkit.loops.checkpoint import CHECKPOINTS, SELECTED, latest_checkpoint
-from trioman.toolkit.model_configs import TrainExaminerOptions, TrainRefinerOptions
-from trioman.toolkit.triplets import TripletSet, Tuples
+from trioman.toolkit.corpus_training_options import TrainExaminerOptions, TrainRefinerOptions
+from trioman.toolkit.corpus.triplets import TripletSet, Tuples
 
 
 def nchw(x: np.ndarray) -> torch.Tensor:
@@ -210,7 +210,7 @@ def fit_refiner(corpus: str | Path | Sequence[str | Path], run: str | Path, cond
     builds on the local diffusers folder ``pretrained`` (``refiner_size`` then does not apply);
     ``mixed_precision`` and ``gradient_checkpointing`` are RefinerTrainConfig's. Under torchrun
     (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md). The defaults
-    are `trioman train-refiner`'s (toolkit/model_configs.py)."""
+    are `trioman train-refiner`'s (toolkit/corpus_training_options.py)."""
     run = Path(run)
     fit = refiner_fit(TrainRefinerOptions()) if fit is None else fit
     ranks = current()
@@ -247,7 +247,7 @@ def fit_examiner(corpus: str | Path | Sequence[str | Path], run: str | Path, nam
 
     ``device`` "cpu" or "cuda"; ``mixed_precision`` is ExaminerTrainConfig's. Under torchrun
     (toolkit/distributed.py) ``fit.batch`` is per rank and the ranks share the run (docs/scaling.md). The defaults
-    are `trioman train-examiner`'s (toolkit/model_configs.py).
+    are `trioman train-examiner`'s (toolkit/corpus_training_options.py).
     """
     run = Path(run)
     fit = examiner_fit(TrainExaminerOptions()) if fit is None else fit

@@ -10,9 +10,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-import trioman.toolkit.corpus as corpus_mod  # noqa: E402
+import trioman.toolkit.corpus.build as corpus_mod  # noqa: E402
 from trioman.cli import main  # noqa: E402
-from trioman.toolkit.corpus import CorpusConfig, build_corpus  # noqa: E402
+from trioman.toolkit.corpus.build import CorpusConfig, build_corpus  # noqa: E402
 
 ARGS = ["--subjects", "1", "--heldout", "1", "--size", "32", "--frames", "8", "--iterations", "2", "--quiet"]
 CFG = CorpusConfig(train_subjects=1, heldout_subjects=1, size=32, frames=8, iterations=2)
