@@ -23,8 +23,9 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
                  steps: int, warmup: int = 2) -> list[dict]:
     """Seconds per stage of one training step (the loop's own step, on the subject's training frames resized
     to each size), the mean of ``steps`` steps after ``warmup``. -> one row per (size, threads): size,
-    threads, gaussians, rasterizer ("C kernel" or "torch"), step_s (wall time of the whole step), stages {name: s}; "other" is the step's time
-    outside the marks (sampling a frame, the PSNR, the finite checks)."""
+    threads, gaussians, rasterizer ("C kernel" or "torch"), step_s (wall time of the whole step), stages {name: s}: STAGES,
+    then any other mark the step recorded (under its own name, so that no marked time hides in "other"), then "other",
+    the step's time outside the marks (sampling a frame, the PSNR, the finite checks)."""
     import torch
 
     from trioman.runtime.formats import load_subject
@@ -60,12 +61,19 @@ def profile_step(subject_dir: Path, preset_name: str, sizes: tuple[int, ...], th
                             train_step(model, optimizer, frames.sample(k % len(frames)), cfg, gen, None, guard, warmup + k)
                         wall = time.perf_counter() - t0
                 stages = {name: record.get(name, 0.0) / steps for name in STAGES}
+                stages.update((name, seconds / steps) for name, seconds in record.items() if name not in STAGES)
                 stages["other"] = wall / steps - sum(stages.values())
                 rows.append({"size": frames.width, "threads": n_threads, "gaussians": model.num_gaussians,
                              "rasterizer": rasterizer, "step_s": wall / steps, "stages": stages})
     finally:
         torch.set_num_threads(previous)
     return rows
+
+
+def stage_names(rows: list[dict]) -> list[str]:
+    """The stage names of the step profile's rows, in first-seen order, "other" last."""
+    names = list(dict.fromkeys(name for r in rows for name in r["stages"] if name != "other"))
+    return names + ["other"]
 
 
 def plot_step_profile(rows: list[dict], path: Path) -> None:
@@ -79,10 +87,10 @@ def plot_step_profile(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(10, 1.2 + 0.6 * len(rows)), dpi=120)
     labels = [r.get("label", f"{r['size']} px, {r['threads']} thread{'s' if r['threads'] > 1 else ''}") for r in rows]
     left = np.zeros(len(rows))
-    names = list(rows[0]["stages"])
+    names = stage_names(rows)
     colors = plt.get_cmap("tab10")(np.arange(len(names)) % 10)
     for name, color in zip(names, colors):
-        ms = np.array([1000 * r["stages"][name] for r in rows])
+        ms = np.array([1000 * r["stages"].get(name, 0.0) for r in rows])
         ax.barh(labels, ms, left=left, color=color, label=name)
         left += ms
     ax.set_xlabel("milliseconds per step")
@@ -281,13 +289,13 @@ def train_markdown(r: dict) -> str:
 
 def step_profile_markdown(rows: list[dict]) -> list[str]:
     """The step profile as markdown lines: milliseconds per stage, one column per (size, threads) row."""
-    names = list(rows[0]["stages"])
+    names = stage_names(rows)
     lines = ["", "## One quick-preset training step, by stage", "",
              f"Milliseconds per step, the mean of the timed steps ({rows[0]['gaussians']} Gaussians, rasterizer: "
              f"{rows[0]['rasterizer']}); \"backward\" excludes the rasterizer's backward, shown on its own.", "",
              "| stage | " + " | ".join(f"{r['size']} px, {r['threads']} thr" for r in rows) + " |",
              "|---|" + "---|" * len(rows)]
     for name in names:
-        lines.append(f"| {name} | " + " | ".join(f"{1000 * r['stages'][name]:.1f}" for r in rows) + " |")
+        lines.append(f"| {name} | " + " | ".join(f"{1000 * r['stages'].get(name, 0.0):.1f}" for r in rows) + " |")
     lines.append("| **step** | " + " | ".join(f"**{1000 * r['step_s']:.1f}**" for r in rows) + " |")
     return lines + ["", "![one step by stage](step_profile.png)"]

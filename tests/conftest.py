@@ -15,7 +15,7 @@ import pytest
 BLOCK_TORCH = "import sys; sys.modules['torch'] = None\n"
 
 # TRIOMAN_TEST_WITHOUT_TORCH=1: the suite as on a machine without torch (`make test` runs tests/runtime so): the
-# runtime's tests pass there, and those whose fixtures build models with torch skip.
+# runtime's tests pass there, and those that compare with a torch model skip, each on its own.
 if os.environ.get("TRIOMAN_TEST_WITHOUT_TORCH") == "1":
     sys.modules["torch"] = None
 
@@ -50,8 +50,8 @@ def skip_without_person_models() -> None:
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    """A tiny trained run: 3 steps on a 6-frame synthetic Anny subject (tests/export, tests/runtime/test_augment.py,
-    tests/runtime/test_shards.py, tests/toolkit/refiner/test_sd_turbo.py)."""
+    """A tiny trained run: 3 steps on a 6-frame synthetic Anny subject (tests/export,
+    tests/toolkit/refiner/test_sd_turbo.py)."""
     pytest.importorskip("torch")
     pytest.importorskip("anny")
     from trioman.toolkit.avatar.model import AvatarConfig

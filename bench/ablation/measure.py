@@ -17,6 +17,7 @@ from trioman.runtime.formats import load_subject
 from trioman.runtime.generator import sample
 from trioman.runtime.image_io import write_png
 from trioman.runtime.metrics import psnr as psnr_db
+from trioman.runtime.outputs import atomic_path
 from trioman.runtime.preview import contact_sheet
 from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
 from trioman.toolkit.evaluate import evaluate, load_run
@@ -75,7 +76,9 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
     (from training frames, at the plan's reach; ``run_of(variant)``: its seed-0 run) made into pseudo-GT by the shared augmentation step (runtime.pseudo_gt) from the
     seed-0 baseline avatar, one kind at a time (each Refiner in ``models``), against the subject's own mesh renderer at the draw (the
     candidate's pose change on the true pose, its camera). Writes pseudo_gt_<name>.png (rows: draws; columns:
-    truth, render, aligned, each Refiner). -> {"frames": masked PSNR per kind, "coverage": mean share of body
+    truth, render, aligned, each Refiner) and pseudo_gt_<name>.npz, the frames the table scores (float32): "truth"
+    [D, H, W, 3] on black, "mask" [D, H, W] (the true mask), "labels" [kinds] and "frames" [kinds, D, H, W, 3] over the
+    background. -> {"frames": masked PSNR per kind, "coverage": mean share of body
     pixels holding carried real pixels, "ms_per_draw": per kind, "avatars": per finished run (seed 0) masked PSNR
     of its render and its mean signed colour error (RGB, inside the true mask), "off_body": the true person pixels
     beyond the body mesh at the draw (hair, loose clothes): their share of the person, how much of them the carried
@@ -159,6 +162,9 @@ def pseudo_gt_truth(subject: Path, run_of: Callable[[str], Path], models: dict[s
             sheet.append(np.repeat(np.repeat(crop, zoom, 0), zoom, 1))
             labels.append(label)
     write_png(out / f"pseudo_gt_{name}.png", contact_sheet(sheet, labels, cols=1 + len(columns)))
+    with atomic_path(out / f"pseudo_gt_{name}.npz") as tmp:
+        np.savez_compressed(tmp, truth=truth.astype(np.float32), mask=mask[..., 0].astype(np.float32),
+                            labels=np.array(list(columns)), frames=np.stack(list(columns.values())).astype(np.float32))
     avatars = {}
     for v, *_ in plan.variants:
         run = run_of(v)

@@ -11,6 +11,7 @@ pytest.importorskip("anny")
 
 from trioman.cli import main  # noqa: E402
 from trioman.bench.ablation import LABELS, ablation_markdown, summarise  # noqa: E402
+from trioman.bench.ablation.measure import FUSED_TEXTURE  # noqa: E402
 from trioman.bench.ablation.report import _frame_target  # noqa: E402
 from trioman.bench.ablation_config import LEVERS, VARIANTS, AblationPlan  # noqa: E402
 from trioman.toolkit.corpus.build import CorpusConfig, build_corpus  # noqa: E402
@@ -42,6 +43,7 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
                                     "refined (warp+geo), carried pixels kept, fused texture 256",
                                     "detail only (tex+geo, 2 px)"}
     assert all(np.isfinite(v) for v in truth["frames"].values()) and 0 < truth["coverage"]["aligned (no Refiner)"] <= 1
+    check_frame_level_numbers(out / "pseudo_gt_s02.npz", truth)
     assert truth["coverage"]["aligned (no Refiner)"] <= truth["coverage"]["aligned, fused texture 256 (no Refiner)"] <= 1
     assert set(truth["avatars"]) == {v for v, *_ in VARIANTS + LEVERS} and all(
         np.isfinite(a["psnr"]) and len(a["colour_bias"]) == 3 for a in truth["avatars"].values())
@@ -122,6 +124,32 @@ def test_ablation_writes_tables_figures_and_resumes(corpus, tmp_path, capsys):
     assert "--reach: the Generator's camera sigmas" in capsys.readouterr().err
     assert main(argv + ["--variants", "baseline,magic"]) == 1
     assert "--variants: unknown ['magic']" in capsys.readouterr().err
+
+
+def check_frame_level_numbers(saved, truth: dict) -> None:
+    """The frame-level table against the frames it scored (pseudo_gt_<name>.npz): each kind's masked PSNR recomputed
+    with runtime.metrics; and what the kinds are by definition, pixel by pixel: the aligned frame is the render but
+    where real pixels were carried, and the frame with the carried pixels kept is the aligned one there and the
+    warp+geo Refiner's frame elsewhere (with the fused texture: the fused aligned frame there)."""
+    from trioman.runtime.metrics import psnr
+
+    with np.load(saved) as z:
+        labels, frames, true, mask = z["labels"].tolist(), z["frames"], z["truth"], z["mask"][..., None]
+    assert labels == list(truth["frames"]) and frames.shape[:2] == (len(labels), truth["draws"]) and true.shape == frames.shape[1:]
+    for label, images in zip(labels, frames):
+        assert float(psnr((images * mask)[None], (true * mask)[None])[0]) == pytest.approx(truth["frames"][label], abs=1e-4), label
+    frame = dict(zip(labels, frames))
+    coarse, kept = frame["coarse"], frame["refined (warp+geo), carried pixels kept"]
+    carried = (frame["aligned (no Refiner)"] != coarse).any(-1)
+    body = mask[..., 0] > 0.5
+    assert (carried & body).any() and (~carried & body).any()  # real pixels reached some of the body, not all of it
+    np.testing.assert_array_equal(kept[carried], frame["aligned (no Refiner)"][carried])
+    np.testing.assert_array_equal(kept[~carried], frame["refined (warp+geo)"][~carried])
+    fused = frame[f"aligned, fused texture {FUSED_TEXTURE} (no Refiner)"]
+    carried = (fused != coarse).any(-1)
+    assert carried.any()
+    np.testing.assert_array_equal(frame[f"refined (warp+geo), carried pixels kept, fused texture {FUSED_TEXTURE}"][carried],
+                                  fused[carried])
 
 
 def test_a_row_alone_trains_only_the_models_it_needs(corpus, tmp_path):

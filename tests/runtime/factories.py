@@ -159,31 +159,48 @@ JOINTS = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, -0.05], [0.12, 0, -0.45], [0
 # export's fixed-size file
 
 
-def block_refiner(path, multiple: int = 8, size: tuple[int, int] = (32, 32), dims: tuple = ("height", "width")):
-    """A Refiner ONNX file (conditions "none") with a total downsampling of ``multiple``, as `trioman export onnx`
-    writes it (``dims``: the graph's H and W, symbolic names or ints) and its metadata (``trioman.size_multiple``
-    when ``dims`` are symbolic): each ``multiple`` x ``multiple`` block of the coarse image becomes its mean
-    (AveragePool, then a nearest Resize back up). Like the real Refiner it gives wrong shapes on sides that are
-    not multiples; ``block_means`` is its output in numpy."""
+def block_refiner(path, multiple: int = 8, size: tuple[int, int] = (32, 32), dims: tuple = ("height", "width"),
+                  conditions: str = "none", config_hash: str | None = None):
+    """A Refiner ONNX file with a total downsampling of ``multiple``, as `trioman export onnx` writes it (``dims``:
+    the graph's H and W, symbolic names or ints) and its metadata (``trioman.size_multiple`` when ``dims`` are
+    symbolic; ``trioman.config_hash`` when given): the inputs that ``conditions`` takes (coarse, reference, normal)
+    are averaged, and each ``multiple`` x ``multiple`` block of that becomes its mean (AveragePool, then a nearest
+    Resize back up), in every view of the output [B, V, 3, H, W]. Like the real Refiner it gives wrong shapes on sides
+    that are not multiples; ``block_means`` is its output in numpy (conditions "none")."""
     import onnx
     from onnx import TensorProto, helper
 
+    from trioman.runtime.onnx_models import REFINER_INPUTS, REFINER_VIEWS
+
+    views = REFINER_VIEWS[conditions]
+    inputs = list(REFINER_INPUTS[:views])
     scales = helper.make_tensor("scales", TensorProto.FLOAT, [4], [1.0, 1.0, float(multiple), float(multiple)])
     axes = helper.make_tensor("axes", TensorProto.INT64, [1], [1])
-    nodes = [helper.make_node("AveragePool", ["coarse"], ["pooled"], kernel_shape=[multiple, multiple],
-                              strides=[multiple, multiple]),
-             helper.make_node("Resize", ["pooled", "", "scales"], ["up"], mode="nearest"),
-             helper.make_node("Unsqueeze", ["up", "axes"], ["refined"])]
+    initializers, nodes = [scales, axes], []
+    first = "coarse"
+    if views > 1:
+        initializers.append(helper.make_tensor("share", TensorProto.FLOAT, [], [1.0 / views]))
+        nodes += [helper.make_node("Sum", inputs, ["summed"]), helper.make_node("Mul", ["summed", "share"], ["mixed"])]
+        first = "mixed"
+    nodes += [helper.make_node("AveragePool", [first], ["pooled"], kernel_shape=[multiple, multiple],
+                               strides=[multiple, multiple]),
+              helper.make_node("Resize", ["pooled", "", "scales"], ["up"], mode="nearest"),
+              helper.make_node("Unsqueeze", ["up", "axes"], ["refined" if views == 1 else "view"])]
+    if views > 1:
+        nodes.append(helper.make_node("Concat", ["view"] * views, ["refined"], axis=1))
     graph = helper.make_graph(nodes, "block_refiner",
-                              [helper.make_tensor_value_info("coarse", TensorProto.FLOAT, ["batch", 3, *dims])],
-                              [helper.make_tensor_value_info("refined", TensorProto.FLOAT, ["batch", 1, 3, *dims])],
-                              [scales, axes])
+                              [helper.make_tensor_value_info(name, TensorProto.FLOAT, ["batch", 3, *dims]) for name in inputs],
+                              [helper.make_tensor_value_info("refined", TensorProto.FLOAT, ["batch", views, 3, *dims])],
+                              initializers)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     meta = {"format": "trioman-onnx", "format_version": "1", "kind": "refiner", "precision": "fp32",
-            "input_size": f"{size[0]},{size[1]}", "inputs": '["coarse"]', "outputs": '["refined"]', "conditions": "none"}
+            "input_size": f"{size[0]},{size[1]}", "inputs": json.dumps(inputs), "outputs": '["refined"]',
+            "conditions": conditions}
     if all(isinstance(d, str) for d in dims):
         meta["size_multiple"] = str(multiple)
+    if config_hash is not None:
+        meta["config_hash"] = config_hash
     for key, value in meta.items():
         model.metadata_props.add(key=f"trioman.{key}", value=value)
     onnx.checker.check_model(model)

@@ -1,6 +1,7 @@
 """``trioman augment``: Generator -> coarse render -> normal map -> Refiner -> Examiner, end to end on a tiny
-subject, a tiny exported avatar and tiny exported ONNX models; records, summary, threshold, determinism,
-resume after an interruption, refusals and bad inputs; a run without torch."""
+subject and avatar, the shipped Examiner and Refiner and small Refiner ONNX files (tests.runtime.augment_inputs, built
+without torch); records, summary, threshold, determinism, resume after an interruption, refusals and bad inputs; a
+run without torch."""
 
 import hashlib
 import json
@@ -10,22 +11,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("onnx")
-
-import trioman.runtime.augment.step as augment_step  # noqa: E402 (the per-frame step, whose write_png is patched)
-from tests.conftest import run_python  # noqa: E402
-from tests.runtime.augment_runs import LIMIT, run, snapshot  # noqa: E402
-from trioman.cli import main  # noqa: E402
-from trioman.runtime.augment import AUGMENT_JSON, HISTOGRAM_PNG, STAGES, augment, frame_seed  # noqa: E402
-from trioman.runtime.aligned import Aligner, SourceViews  # noqa: E402
-from trioman.runtime.formats import FormatError, load_avatar, load_subject  # noqa: E402
-from trioman.runtime.formats.avatar import sha256_file  # noqa: E402
-from trioman.runtime.generator import GROUPS, sample  # noqa: E402
-from trioman.runtime.image_io import png_header, read_png, to_uint8  # noqa: E402
-from trioman.runtime.onnx_models import ExaminerModel, RefinerModel  # noqa: E402
-from trioman.runtime.normal_map import body_normal_map  # noqa: E402
-from trioman.runtime.render import rasterize  # noqa: E402
+import trioman.runtime.augment.step as augment_step  # the per-frame step, whose write_png is patched
+from tests.conftest import run_python
+from tests.runtime.augment_runs import LIMIT, run, snapshot
+from trioman.cli import main
+from trioman.runtime.augment import AUGMENT_JSON, HISTOGRAM_PNG, STAGES, augment, frame_seed
+from trioman.runtime.aligned import Aligner, SourceViews
+from trioman.runtime.formats import FormatError, load_avatar, load_subject
+from trioman.runtime.formats.avatar import sha256_file
+from trioman.runtime.generator import GROUPS, sample
+from trioman.runtime.image_io import png_header, read_png, to_uint8
+from trioman.runtime.onnx_models import ExaminerModel, RefinerModel
+from trioman.runtime.normal_map import body_normal_map
+from trioman.runtime.render import rasterize
 
 
 def records(out: Path) -> list[dict]:
@@ -261,7 +259,7 @@ def test_overwrite_removes_only_what_augment_wrote_and_resume_removes_temporary_
                                                    "images are 32x32; export the Refiner again (trioman export onnx --refiner "
                                                    "CKPT): an export with `trioman.size_multiple` takes any size"),
     (["--refiner", "{root}/examiner.onnx"], "metadata 'trioman.kind': expected 'refiner', got 'examiner'"),
-    (["--avatar", "{root}/other_avatar"], "other_avatar has 4 joints, but the subject's body has 104 joints"),
+    (["--avatar", "{root}/other_avatar"], "other_avatar has 5 joints, but the subject's body has 18 joints"),
 ], ids=["per-frame", "per-frame-huge", "threshold-high", "threshold-low", "limit", "seed", "resume-overwrite", "refiner-missing",
         "examiner-missing", "refiner-size", "refiner-kind", "joints"])
 def test_bad_inputs_fail_before_any_work(inputs, tmp_path, capsys, args, message):
@@ -300,7 +298,8 @@ def test_a_full_disk_is_one_line_naming_the_file_and_the_run_resumes(inputs, str
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
-    assert f"{out / 'images'}" in err and "_c0.png: no space left on the device" in err, err
+    third = records(straight.out)[2]["frames"][0]["name"]  # the third frame's image, as the run without a full disk wrote it
+    assert f"{out / 'images' / third}.png: no space left on the device" in err, err
     assert not [p for p in out.rglob("*") if outputs.is_temp_name(p.name)]  # no partial file
     monkeypatch.undo()
     assert main(argv + ["--resume"]) == 0  # the finished frames stay; the run completes

@@ -4,12 +4,9 @@ the merge fail naming it."""
 
 import pytest
 
-pytest.importorskip("torch")
-pytest.importorskip("onnx")
-
-from tests.runtime.augment_runs import LIMIT, snapshot  # noqa: E402
-from trioman.cli import main  # noqa: E402
-from trioman.runtime.shards import Shard  # noqa: E402
+from tests.runtime.augment_runs import LIMIT, snapshot
+from trioman.cli import main
+from trioman.runtime.shards import Shard
 
 
 def argv(inputs, out, *extra):  # the flags of tests.runtime.augment_runs.run()

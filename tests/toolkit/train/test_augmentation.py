@@ -1,6 +1,5 @@
 """Online augmentation in the avatar's training: every mode trains, resume is exact, bad models give one line."""
 
-import csv
 import dataclasses
 import json
 
@@ -10,45 +9,14 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
+from tests.toolkit.train.conftest import SIZE  # noqa: E402
+from tests.toolkit.train.factories import TINY_AVATAR, losses  # noqa: E402
 from trioman.cli import main  # noqa: E402
-from trioman.toolkit.avatar.model import AvatarConfig  # noqa: E402
-from trioman.toolkit.examiner import Examiner, ExaminerConfig  # noqa: E402
-from trioman.toolkit.refiner import RefinerConfig, create_refiner  # noqa: E402
-from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.train.augmentation import AugmentConfig  # noqa: E402
 from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
 from trioman.toolkit.train.loop import AUGMENT_JSON, train  # noqa: E402
 from trioman.toolkit.train.augment_models import load_pseudo_examiner, load_pseudo_refiner  # noqa: E402
-
-TINY_AVATAR = AvatarConfig(keep=0.3, triplane_channels=4, triplane_res=16, hidden=32)
-SIZE = 32
-
-
-@pytest.fixture(scope="module")
-def subject(tmp_path_factory):
-    out = tmp_path_factory.mktemp("subj") / "s"
-    synthesize_subject(SynthConfig(seed=5, size=SIZE, frames=10, texture_size=256), out, progress=False)
-    return out
-
-
-@pytest.fixture(scope="module")
-def models(tmp_path_factory):
-    """Checkpoints of a tiny tex+geo Refiner and a tiny Examiner, in refiner_loop/examiner_loop's format."""
-    d = tmp_path_factory.mktemp("models")
-    refiner = create_refiner(RefinerConfig(image_size=SIZE, vae_widths=(8, 8, 8), unet_widths=(8, 16, 16), attention_heads=2,
-                                           conditions="tex+geo"), seed=0)
-    examiner = Examiner(ExaminerConfig(img_size=SIZE, patch_size=8, embed_dim=16, depth=1, num_heads=2, dual_dims=(8,),
-                                       dual_heads=2, head_hidden=8))
-    paths = {"refiner": d / "refiner.pt", "examiner": d / "examiner.pt"}
-    for name, m in (("refiner", refiner), ("examiner", examiner)):
-        torch.save({"step": 0, "model": m.state_dict(), "config": m.config.to_dict()}, paths[name])
-    return paths
-
-
-def losses(run) -> np.ndarray:
-    with open(run / "train_log.csv") as f:
-        return np.array([float(r["loss"]) for r in csv.DictReader(f)])
 
 
 def augment_cfg(mode: str, models, **kw) -> AugmentConfig:
@@ -83,16 +51,6 @@ def test_each_mode_trains_on_pseudo_frames_and_lowers_the_loss(subject, models, 
     # the record holds the config as trained: the subject-dependent defaults resolved (a synthetic subject: no pose
     # corrections)
     assert TrainConfig.from_dict(saved["train"]) == dataclasses.replace(cfg, refine_poses=False)
-
-
-@pytest.fixture
-def two_threads():
-    # With two torch threads the CPU index backward used to accumulate in a thread-dependent order (resumed
-    # and straight runs differed by up to 4e-4); train() now runs torch's deterministic kernels.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(2)
-    yield
-    torch.set_num_threads(threads)
 
 
 def test_resume_of_an_augmented_run_matches_an_uninterrupted_run_and_differs_from_the_plain_one(subject, models, tmp_path,

@@ -10,16 +10,12 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-from tests.toolkit.train import test_augmentation as shared  # noqa: E402
+from tests.toolkit.train.factories import TINY_AVATAR, losses  # noqa: E402
 from trioman.toolkit.loops.checkpoint import list_checkpoints, load_checkpoint  # noqa: E402
 from trioman.toolkit.train.augmentation import AugmentConfig  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
 from trioman.toolkit.train.fork import fork_run, fork_step  # noqa: E402
 from trioman.toolkit.train.loop import AUGMENT_JSON, train  # noqa: E402
-
-TINY_AVATAR, losses = shared.TINY_AVATAR, shared.losses
-subject, models, two_threads = shared.subject, shared.models, shared.two_threads  # the same fixtures
-
 
 def _weights(run):
     return load_checkpoint(list_checkpoints(run)[-1])["model"]
