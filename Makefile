@@ -40,9 +40,9 @@ test: lint
 # training subjects, exported to ONNX (fp32, parity against torch on held-out triplets), copied into runtime/pretrained.
 MODELS ?= out/models
 models: install
-	$(BIN)/trioman synth-corpus --out $(MODELS)/corpus --style realistic --subjects 4 --heldout 2 --baseline-frames subset --quiet
+	$(BIN)/trioman synth-corpus --out $(MODELS)/corpus --style realistic --subjects 8 --heldout 2 --baseline-frames subset --quiet
 	$(BIN)/trioman train-refiner --corpus $(MODELS)/corpus --out $(MODELS)/refiner --conditions warp+geo --baseline-frames subset
-	$(BIN)/trioman train-examiner --corpus $(MODELS)/corpus --out $(MODELS)/examiner --baseline-frames subset
+	$(BIN)/trioman train-examiner --corpus $(MODELS)/corpus --out $(MODELS)/examiner --baseline-frames subset --validation-subjects 2
 	$(BIN)/trioman export onnx --refiner $(MODELS)/refiner --examiner $(MODELS)/examiner --variants fp32 \
 		--calibration $(MODELS)/corpus/triplets/heldout/*.npz --out $(MODELS)/onnx --overwrite
 	$(BIN)/trioman export pretrained $(MODELS)/onnx --dest runtime/pretrained --heldout $(MODELS)/corpus/triplets/heldout/*.npz
