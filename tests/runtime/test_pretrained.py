@@ -56,7 +56,8 @@ def test_the_record_holds_the_held_out_quality():
     assert abs(q["refiner_gain_db"] - (q["psnr_refined_db"] - q["psnr_render_db"])) <= 0.002
     # a warp+geo Refiner: its aligned input is measured too (the bar it must clear, docs/models.md)
     assert abs(q["refiner_gain_over_aligned_db"] - (q["psnr_refined_db"] - q["psnr_aligned_db"])) <= 0.002
-    assert 0.5 < q["examiner_auroc_real_vs_render"] <= 1  # better than chance on subjects it never saw
+    # well above chance on subjects it never saw (a constant-scoring Examiner, as the first one shipped, lands near 0.5)
+    assert 0.6 < q["examiner_auroc_real_vs_render"] <= 1
 
 
 def test_resolve_model_values():
