@@ -88,13 +88,21 @@ def _check_sides(path: Path, width: int, height: int, what: str) -> None:
         raise ValueError(f"{path}: {what} is {width}x{height}; a frame side must be {MIN_SIDE} to {MAX_SIDE} pixels")
 
 
+def scaled_size(width: int, height: int, long_side: int | None) -> tuple[int, int]:
+    """The (W, H) a ``width`` x ``height`` frame is read at when its long side is limited to ``long_side``
+    (FrameSelection's rule: only downscaled, aspect kept, sides rounded, at least 1; 0 or None: native)."""
+    if not long_side or max(width, height) <= long_side:
+        return width, height
+    scale = long_side / max(width, height)
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
 def _fit(bgr: np.ndarray, long_side: int | None, rotation: int = 0) -> np.ndarray:
     """BGR uint8 [h, w, 3] as decoded -> RGB uint8 [H, W, 3]: downscaled to ``long_side``, then rotated by
     ``rotation`` degrees clockwise (the small image, not the decoded one, is converted and rotated)."""
     h, w = bgr.shape[:2]
-    if long_side and max(h, w) > long_side:
-        scale = long_side / max(h, w)
-        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    size = scaled_size(w, h, long_side)
+    if size != (w, h):
         bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
     if rotation:
         bgr = cv2.rotate(bgr, _ROTATE[rotation])

@@ -66,6 +66,9 @@ class FitRunConfig:
     """What ``fit_video`` reads and how it fits."""
 
     selection: FrameSelection = field(default_factory=FrameSelection)
+    track_side: int | None = option(None, check=integer(0), metavar="PX", default_text="--long-side",
+                                    help="the person model and the fit see the frames at this long side (0: native), "
+                                         "e.g. a phone video's 540 px for a subject written smaller with --long-side")
     focal: float | None = option(None, metavar="PX", check=number(0, lo_open=True),
                                  default_text="a phone's, refined by the fit",
                                  help="the focal length in pixels at the output size (or --fov)")

@@ -29,7 +29,8 @@ from trioman.runtime.mesh_raster import rasterize_mesh
 from trioman.runtime.person import PersonTracker
 from trioman.runtime.preview import contact_sheet
 from trioman.runtime.stages import StageLog
-from trioman.runtime.video_input import VideoInfo, open_frames
+from trioman.runtime.frame_selection import FrameSelection
+from trioman.runtime.video_input import VideoInfo, open_frames, scaled_size
 from trioman.toolkit.fit.config import FitConfig, FitRunConfig
 from trioman.toolkit.fit.fitter import DIST_MAP_SIDE, FitResult, Observations, fit_sequence
 from trioman.toolkit.train.config import FITTED_BY
@@ -54,8 +55,8 @@ class _Tracked:
     size: tuple[int, int] | None = None  # (W, H)
 
 
-def _track(source: Path, cfg: FitRunConfig, progress: bool) -> tuple[VideoInfo, _Tracked]:
-    info, frames = open_frames(source, cfg.selection)
+def _track(source: Path, selection: FrameSelection, cfg: FitRunConfig, progress: bool) -> tuple[VideoInfo, _Tracked]:
+    info, frames = open_frames(source, selection)
     tracker = PersonTracker(cfg.tracker)
     out = _Tracked()
     total = info.frames if info.frames is not None else None
@@ -89,10 +90,11 @@ def _observations(t: _Tracked) -> Observations:
                         masks=masks, frame_index=np.array([t.indices[k] for k in t.kept]), width=W, height=H)
 
 
-def _focal(cfg: FitRunConfig, size: tuple[int, int]) -> float | None:
+def _focal(cfg: FitRunConfig, size: tuple[int, int], track_size: tuple[int, int]) -> float | None:
+    """The focal given (``--focal`` at the output ``size``, or ``--fov``) in pixels at the tracking size, or None."""
     if cfg.fov_deg is not None:
-        return 0.5 * max(size) / math.tan(math.radians(cfg.fov_deg) / 2)
-    return cfg.focal
+        return 0.5 * max(track_size) / math.tan(math.radians(cfg.fov_deg) / 2)
+    return None if cfg.focal is None else cfg.focal * max(track_size) / max(size)
 
 
 def _body_masks(result: FitResult, mesh, size: tuple[int, int]) -> list[np.ndarray]:
@@ -120,10 +122,12 @@ def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = No
     check_not_input(out, [source])
     log = StageLog(say=say)
     started = time.perf_counter()
+    track = cfg.selection if cfg.track_side is None else dataclasses.replace(cfg.selection, long_side=cfg.track_side)
     with log.stage("read and track"):
-        info, tracked = _track(source, cfg, progress)
+        info, tracked = _track(source, track, cfg, progress)
     obs = _observations(tracked)
-    focal = _focal(cfg, tracked.size)
+    size = scaled_size(info.width, info.height, cfg.selection.long_side)  # the subject's (W, H)
+    focal = _focal(cfg, size, tracked.size)
     fit_cfg = cfg.fit if focal is None else dataclasses.replace(cfg.fit, focal=focal, refine_focal=False)
     from trioman.toolkit.body.registry import create_body_model  # torch and Anny, after the cheap checks
 
@@ -142,49 +146,51 @@ def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = No
         bodies = _body_masks(result, mesh, tracked.size)
     iou = np.array([((b & (m >= 128)).sum() / max(1, (b | (m >= 128)).sum())) for b, m in zip(bodies, tracked.masks)])
 
-    def kept_frames():
+    def kept_frames(selection: FrameSelection):
         """Re-read the source; the kept frames in order (uint8)."""
         wanted = {tracked.indices[k] for k in kept}
-        _, frames = open_frames(source, cfg.selection)
+        _, frames = open_frames(source, selection)
         for index, _name, frame in frames:
             if index in wanted:
                 yield frame
 
+    # the camera and the masks at the subject's size: pixel coordinates scale with the image ([0, W] x [0, H])
+    K = np.diag([size[0] / W, size[1] / H, 1.0]) @ result.K
     with log.stage("write subject"):
-        masks = tracked.masks
+        masks = tracked.masks if size == (W, H) else [cv2.resize(m, size, interpolation=cv2.INTER_AREA) for m in tracked.masks]
         generator = {"tool": FITTED_BY, "version": __version__, "source": source.name,
-                     "selection": dataclasses.asdict(cfg.selection), "focal": float(result.K[0, 0]),
+                     "selection": dataclasses.asdict(cfg.selection), "track_size": [W, H], "focal": float(K[0, 0]),
                      "fit": {k: v for k, v in dataclasses.asdict(fit_cfg).items() if k != "phenotype"}}
         subject = save_subject(
             out, body=mesh, poses=result.poses.astype(np.float32), trans=result.trans.astype(np.float32),
-            K=np.repeat(result.K[None], len(kept), 0).astype(np.float32),
+            K=np.repeat(K[None], len(kept), 0).astype(np.float32),
             viewmat=np.repeat(result.viewmat[None], len(kept), 0).astype(np.float32),
             split=split, sequence=[SEQUENCE] * len(kept),
-            images=(f.astype(np.float32) / 255.0 * (m[..., None] / 255.0) for f, m in zip(kept_frames(), masks)),
+            images=(f.astype(np.float32) / 255.0 * (m[..., None] / 255.0) for f, m in zip(kept_frames(cfg.selection), masks)),
             masks=(m.astype(np.float32) / 255.0 for m in masks),
-            width=W, height=H, body_model="anny", background=(0.0, 0.0, 0.0), phenotype=result.phenotype,
+            width=size[0], height=size[1], body_model="anny", background=(0.0, 0.0, 0.0), phenotype=result.phenotype,
             generator=generator, frame_names=[tracked.names[k] for k in kept], overwrite=overwrite,
         )
     with log.stage("report"):
         picks = np.unique(np.linspace(0, len(kept) - 1, min(12, len(kept))).round().astype(int))
         shown = {}
         with VideoWriter(out / OVERLAY_MP4, info.fps or 30.0) as video:
-            for k, frame in enumerate(kept_frames()):
-                img = _overlay(frame, bodies[k], masks[k])
+            for k, frame in enumerate(kept_frames(track)):
+                img = _overlay(frame, bodies[k], tracked.masks[k])
                 video.write(img)
                 if k in picks:
                     shown[k] = img
         write_png(out / OVERLAY_PNG, contact_sheet([shown[k] for k in picks],
                                                    [f"{tracked.names[kept[k]]} {result.reprojection_px[k]:.1f}px IoU {iou[k]:.2f}"
                                                     for k in picks], cols=6))
-        report = _report(source, info, cfg, fit_cfg, tracked, result, iou, split, time.perf_counter() - started)
+        report = _report(source, info, cfg, fit_cfg, tracked, result, iou, split, size, time.perf_counter() - started)
         atomic_write_text(out / FIT_JSON, json.dumps(report, indent=1) + "\n")
         atomic_write_text(out / FIT_MD, _markdown(report))
     return subject
 
 
 def _report(source: Path, info: VideoInfo, cfg: FitRunConfig, fit_cfg: FitConfig, t: _Tracked, result: FitResult,
-            iou: np.ndarray, split: list[str], seconds: float) -> dict:
+            iou: np.ndarray, split: list[str], size: tuple[int, int], seconds: float) -> dict:
     kept_at = {pos: k for k, pos in enumerate(t.kept)}
     frames = []
     for pos, name in enumerate(t.names):
@@ -204,8 +210,8 @@ def _report(source: Path, info: VideoInfo, cfg: FitRunConfig, fit_cfg: FitConfig
         "format": "trioman-fit", "version": 1, "trioman": __version__, "source": str(source),
         "video": {"kind": info.kind, "fps": info.fps, "frames": info.frames, "width": info.width, "height": info.height,
                   "rotation": info.rotation},
-        "selection": dataclasses.asdict(cfg.selection), "size": list(t.size),
-        "camera": {"focal_px": round(float(result.K[0, 0]), 3), "focal_given": fit_cfg.focal is not None,
+        "selection": dataclasses.asdict(cfg.selection), "size": list(size), "track_size": list(t.size),
+        "camera": {"focal_px": round(float(result.K[0, 0]) * size[0] / t.size[0], 3), "focal_given": fit_cfg.focal is not None,
                    "viewmat": np.round(result.viewmat, 6).tolist()},
         "phenotype": result.phenotype,
         "summary": {"frames_read": len(t.names), "frames_kept": len(t.kept), "dropped": dropped,
@@ -221,10 +227,12 @@ def _report(source: Path, info: VideoInfo, cfg: FitRunConfig, fit_cfg: FitConfig
 def _markdown(r: dict) -> str:
     s = r["summary"]
     dropped = ", ".join(f"{k} {v}" for k, v in sorted(s["dropped"].items())) or "none"
+    tracked = "" if r["track_size"] == r["size"] else (f" (tracked and fitted at {r['track_size'][0]}x{r['track_size'][1]}: "
+                                                        "the reprojection errors and the overlays are at that size)")
     lines = [
         f"# trioman fit: {Path(r['source']).name}", "",
         f"{s['frames_kept']} of {s['frames_read']} selected frames kept (dropped: {dropped}); "
-        f"{r['size'][0]}x{r['size'][1]} px, focal {r['camera']['focal_px']} px "
+        f"{r['size'][0]}x{r['size'][1]} px{tracked}, focal {r['camera']['focal_px']} px "
         f"({'given' if r['camera']['focal_given'] else 'fitted from the phone prior'}); {s['seconds']} s. "
         f"{s['mirrored']} kept frames were read mirrored by the pose model (front taken for back) and had their "
         "left and right exchanged.", "",

@@ -52,6 +52,25 @@ def test_a_video_becomes_a_subject_close_to_its_truth(made):
     assert img[mask == 0].max() == 0 and img[mask > 0.9].std() > 0.03  # premultiplied by the person mask
 
 
+def test_tracked_at_the_video_size_written_smaller(made, tmp_path):
+    """--track-side 0 --long-side 128: the same fit as at the video's size, the subject and its camera halved."""
+    from trioman.runtime.frame_selection import FrameSelection
+
+    root, truth, fitted = made
+    cfg = FitRunConfig(selection=FrameSelection(long_side=128), track_side=0, focal=float(truth.K[0, 0, 0]) / 2, test_every=4, fit=QUICK)
+    small = fit_video(root / "video.mp4", tmp_path / "small", cfg, progress=False, say=lambda line: None)
+    assert (fitted.width, fitted.height, small.width, small.height) == (144, 256, 72, 128)
+    assert list(small.frame_names) == list(fitted.frame_names) and list(small.split) == list(fitted.split)
+    np.testing.assert_allclose(small.poses, fitted.poses, atol=1e-6)
+    np.testing.assert_allclose(small.trans, fitted.trans, atol=1e-6)
+    np.testing.assert_allclose(small.K, fitted.K * np.array([0.5, 0.5, 1.0])[None, :, None], rtol=1e-6)
+    report = json.loads((tmp_path / "small" / "fit.json").read_text())
+    assert report["size"] == [72, 128] and report["track_size"] == [144, 256]
+    assert report["camera"]["focal_px"] == pytest.approx(truth.K[0, 0, 0] / 2, rel=1e-4)
+    mask, big = small.mask(0), fitted.mask(0)
+    assert abs(mask.mean() - big.mean()) < 0.01 and np.abs(mask - big.reshape(128, 2, 72, 2).mean((1, 3))).mean() < 0.02
+
+
 def test_the_subject_can_be_replaced_only_with_overwrite(made, tmp_path):
     root, truth, _ = made
     with pytest.raises(FileExistsError, match="overwrite"):
