@@ -57,6 +57,10 @@ class AblationPlan:
     poses: str = option("true", choices=("true", "fit"),
                         help="the held-out subjects' poses: true (with --pose-noise) or fit (each re-rendered as a "
                              "video, every frame, and fitted by `trioman fit`; evaluated at the fitted test poses)")
+    video_side: int = option(540, metavar="PX", check=integer(0),
+                             help="with --poses fit: the long side of the held-out subjects' videos, tracked and fitted "
+                                  "at that size as a phone's video is (`trioman fit --track-side`), the subject written at "
+                                  "the corpus's size (0: the video at the subject's own size)")
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -70,7 +74,7 @@ class AblationPlan:
     def capture(self) -> str:
         """The suffix of the subjects (and the unaugmented runs) of this plan's capture regime ('' for the corpus's own)."""
         if self.poses == "fit":
-            return f"-cov{self.coverage:g}-fit"
+            return f"-cov{self.coverage:g}-fit" + (f"{self.video_side}" if self.video_side else "")
         return "" if (self.coverage, self.pose_noise) == (1.0, 0.0) else f"-cov{self.coverage:g}-noise{self.pose_noise:g}"
 
     @property
@@ -107,7 +111,8 @@ class AblationPlan:
         return {"iterations": self.iterations, "seeds": self.seeds, "start": s.start, "share": s.share,
                 "refresh": s.refresh, "pool": s.pool, "weight": s.weight, "detail_sigma": self.detail_sigma,
                 "mask": s.mask, "coverage": self.coverage, "pose_noise": self.pose_noise, "reach": self.reach,
-                "poses": self.poses, "augmented_iterations": self.augmented_iterations}
+                "poses": self.poses, "video_side": self.video_side if self.poses == "fit" else None,
+                "augmented_iterations": self.augmented_iterations}
 
 
 @dataclass(frozen=True)

@@ -189,7 +189,9 @@ def ablation_markdown(r: dict) -> str:
              "avatars saw every frame; subset: every 4th, so most coarse frames carry novel-view error). Test split = novel poses from novel views; PSNR/SSIM under the masked protocol "
              f"(GT mask, white background). LPIPS: {'AlexNet' if r['lpips'] else 'not computed (no local weights)'}.", "",
              f"Capture regime: {plan.get('coverage', 1.0):g} of a full turn in the training frames, "
-             + ("poses fitted by `trioman fit` from each subject's video (every frame; a phone's focal prior), the test "
+             + ("poses fitted by `trioman fit` from each subject's video (every frame; a phone's focal prior; "
+                + (f"the video's long side {plan['video_side']} px, tracked and fitted at that size, the subject at the corpus's"
+                   if plan.get("video_side") else "the video at the subject's size") + "), the test "
                 "frames' too, evaluated at their fitted poses refitted to each test frame's pixels with the avatar frozen "
                 "(`trioman eval --poses optimised`); the ceiling rows: the truth at the draws' pose change and camera "
                 "move, applied to the true frame" if plan.get("poses") == "fit" else

@@ -21,8 +21,10 @@ from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject
 def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig | None = None) -> Path:
     """The held-out subject as the plan's regime captures it: the corpus's own folder, or (coverage < 1, pose
     noise, fitted poses) the same synthetic subject re-rendered with them in OUT/subjects (made once). Fitted poses:
-    the re-rendered subject's every frame as a video (OUT/subjects/<name>.mp4), ``trioman fit`` on it at its own size
-    with a phone's focal prior (OUT/subjects/<name>_fit: fit.json, overlays), the fit linked to the truth
+    the re-rendered subject's every frame as a video (OUT/subjects/<name>.mp4) at the plan's ``video_side`` (the
+    scene rendered again at that size, OUT/subjects/<name>_video; the same draws at any size), ``trioman fit`` on it
+    tracking at the video's size and writing at the subject's, with a phone's focal prior (OUT/subjects/<name>_fit:
+    fit.json, overlays), the fit linked to the truth
     (toolkit/synth/linked.py) with the truth's split: the test frames' poses are fitted too, as a user's are (and
     refitted to their pixels when evaluated).
     ``fit``: the fitter's settings (default: `trioman fit`'s)."""
@@ -39,11 +41,17 @@ def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig 
         return target
     stem = out / "subjects" / (subject.name + plan.capture)
     truth_dir, video, fit_dir = stem.with_name(stem.name + "_truth"), stem.with_name(stem.name + ".mp4"), stem.with_name(stem.name + "_fit")
+    big = dataclasses.replace(cfg, size=plan.video_side) if plan.video_side else cfg
     if not (truth_dir / "subject.json").is_file() or not video.is_file():
         stem.parent.mkdir(parents=True, exist_ok=True)
-        synthesize_subject(cfg, truth_dir, overwrite=True, progress=False, video=video, video_frames="all")
+        if big == cfg:
+            synthesize_subject(cfg, truth_dir, overwrite=True, progress=False, video=video, video_frames="all")
+        else:
+            synthesize_subject(cfg, truth_dir, overwrite=True, progress=False)
+            synthesize_subject(big, stem.with_name(stem.name + "_video"), overwrite=True, progress=False, video=video,
+                               video_frames="all")
     if not (fit_dir / "subject.json").is_file():
-        run = FitRunConfig(selection=FrameSelection(long_side=0), test_every=0)
+        run = FitRunConfig(selection=FrameSelection(long_side=max(cfg.width, cfg.height)), track_side=0, test_every=0)
         fit_video(video, fit_dir, run if fit is None else dataclasses.replace(run, fit=fit), overwrite=True,
                   progress=False, say=lambda line: print(f"bench ablation: fit {subject.name}: {line}", flush=True))
     link_fitted(load_subject(fit_dir), load_subject(truth_dir), target)
