@@ -4,6 +4,7 @@ parser from these fields."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -55,6 +56,9 @@ class FitConfig:
 
 
 
+TRACK_SIDE = 540  # the long side the person model and the fit see by default (docs/fit.md, 'Measured')
+
+
 def _tracker_config() -> "TrackerConfig":
     from trioman.runtime.person import TrackerConfig
 
@@ -66,9 +70,9 @@ class FitRunConfig:
     """What ``fit_video`` reads and how it fits."""
 
     selection: FrameSelection = field(default_factory=FrameSelection)
-    track_side: int | None = option(None, check=integer(0), metavar="PX", default_text="--long-side",
-                                    help="the person model and the fit see the frames at this long side (0: native), "
-                                         "e.g. a phone video's 540 px for a subject written smaller with --long-side")
+    track_side: int | None = option(None, check=integer(0), metavar="PX", default_text=f"{TRACK_SIDE}, or --long-side when larger",
+                                    help="the person model and the fit see the frames at this long side (0: native); the "
+                                         "subject is written at --long-side, its camera and masks scaled")
     focal: float | None = option(None, metavar="PX", check=number(0, lo_open=True),
                                  default_text="a phone's, refined by the fit",
                                  help="the focal length in pixels at the output size (or --fov)")
@@ -79,6 +83,14 @@ class FitRunConfig:
                              help="every N-th kept frame goes to the test split (0: none)")
     fit: FitConfig = field(default_factory=FitConfig)
     tracker: TrackerConfig = field(default_factory=_tracker_config)
+
+    @property
+    def tracking(self) -> FrameSelection:
+        """The selection the person model and the fit read: ``selection`` at ``track_side``."""
+        side, out = self.track_side, self.selection.long_side
+        if side is None:
+            side = 0 if not out else max(out, TRACK_SIDE)
+        return dataclasses.replace(self.selection, long_side=side)
 
     def __post_init__(self) -> None:
         if self.focal is not None and self.fov_deg is not None:

@@ -122,7 +122,7 @@ def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = No
     check_not_input(out, [source])
     log = StageLog(say=say)
     started = time.perf_counter()
-    track = cfg.selection if cfg.track_side is None else dataclasses.replace(cfg.selection, long_side=cfg.track_side)
+    track = cfg.tracking
     with log.stage("read and track"):
         info, tracked = _track(source, track, cfg, progress)
     obs = _observations(tracked)

@@ -71,6 +71,15 @@ def test_tracked_at_the_video_size_written_smaller(made, tmp_path):
     assert abs(mask.mean() - big.mean()) < 0.01 and np.abs(mask - big.reshape(128, 2, 72, 2).mean((1, 3))).mean() < 0.02
 
 
+@pytest.mark.parametrize("long_side, track_side, tracked", [(540, None, 540), (256, None, 540), (1080, None, 1080),
+                                                             (0, None, 0), (256, 0, 0), (540, 200, 200)])
+def test_the_tracking_size(long_side, track_side, tracked):
+    from trioman.runtime.frame_selection import FrameSelection
+
+    cfg = FitRunConfig(selection=FrameSelection(long_side=long_side, every=3), track_side=track_side)
+    assert cfg.tracking == FrameSelection(long_side=tracked, every=3)
+
+
 def test_the_subject_can_be_replaced_only_with_overwrite(made, tmp_path):
     root, truth, _ = made
     with pytest.raises(FileExistsError, match="overwrite"):
