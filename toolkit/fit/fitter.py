@@ -153,7 +153,8 @@ class _Body:
         is_joint = corr.joint >= 0
         j = torch.as_tensor(corr.joint[is_joint])
         Aj = A[:, self.owner[j]]  # [B, Mj, 4, 4]: each landmark joint moves with its active ancestor
-        marks[:, torch.as_tensor(is_joint)] = Aj[..., :3, 3] + (Aj[..., :3, :3] @ joints[j][..., None])[..., 0]
+        at = joints[j] + torch.as_tensor(corr.offset[is_joint], dtype=joints.dtype)
+        marks[:, torch.as_tensor(is_joint)] = Aj[..., :3, 3] + (Aj[..., :3, :3] @ at[..., None])[..., 0]
         marks[:, torch.as_tensor(~is_joint)] = posed_points[:, : self.n_mark_verts]
         return marks, posed_points[:, self.n_mark_verts:], full
 

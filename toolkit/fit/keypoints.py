@@ -22,6 +22,10 @@ JOINT_LANDMARKS = {
     23: "upperleg01.L", 24: "upperleg01.R", 25: "lowerleg01.L", 26: "lowerleg01.R", 27: "foot.L", 28: "foot.R",
 }
 VERTEX_LANDMARKS = (0, 7, 8, 29, 30, 31, 32)  # nose, ears, heels, toe tips
+# landmark index -> offset (m, Anny's rest frame: +x the person's left, -y front, +z up) from its joint to where
+# MediaPipe puts it, moved with the joint: the two skeletons' definitions differ (MediaPipe's shoulder lies above
+# Anny's upperarm01, its ankle above Anny's foot joint). Empty: the joints themselves.
+JOINT_OFFSETS: dict[int, tuple[float, float, float]] = {}
 # how much each landmark counts in the reprojection term (hands and face points are less reliable than limbs)
 LANDMARK_WEIGHT = {**{i: 1.0 for i in range(33)}, **{i: 0.3 for i in (0, 2, 5, 7, 8, 17, 18, 19, 20, 21, 22)}}
 # limbs whose 3D direction the fit takes from the world landmarks: (from, to) landmark indices. The legs and the
@@ -37,6 +41,15 @@ class Correspondence:
     joint: np.ndarray  # [M] int, -1 where the landmark is a vertex
     vertex: np.ndarray  # [M] int, -1 where it is a joint
     weight: np.ndarray  # [M] float
+    offset: np.ndarray  # [M, 3] float, a joint landmark's rest-frame offset from its joint (0 for vertices)
+
+    def points(self, mesh: SkinnedMesh, pose: np.ndarray, trans: np.ndarray) -> np.ndarray:
+        """The landmarks on ``mesh`` posed (the reference: full forward kinematics and skinning). -> [M, 3] world"""
+        G = mesh.skeleton.forward_kinematics(pose, trans)
+        A = G @ np.linalg.inv(mesh.skeleton.forward_kinematics(np.zeros_like(pose), np.zeros(3)))  # skinning transforms
+        j = self.joint.clip(0)
+        at_joint = G[j, :3, 3] + np.einsum("mij,mj->mi", A[j, :3, :3], self.offset)
+        return np.where((self.joint >= 0)[:, None], at_joint, mesh.pose(pose, trans)[self.vertex.clip(0)])
 
 
 def _dominant(mesh: SkinnedMesh) -> np.ndarray:
@@ -68,4 +81,5 @@ def correspondence(mesh: SkinnedMesh) -> Correspondence:
         joint=np.array([sk.index(JOINT_LANDMARKS[m]) if m in JOINT_LANDMARKS else -1 for m in marks]),
         vertex=np.array([picks.get(m, -1) for m in marks]),
         weight=np.array([LANDMARK_WEIGHT[m] for m in marks]),
+        offset=np.array([JOINT_OFFSETS.get(m, (0.0, 0.0, 0.0)) if m in JOINT_LANDMARKS else (0.0, 0.0, 0.0) for m in marks]),
     )

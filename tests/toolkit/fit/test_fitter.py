@@ -36,9 +36,7 @@ def perfect_observations(s) -> Observations:
     kp, conf, world = np.zeros((N, 33, 2)), np.zeros((N, 33)), np.zeros((N, 33, 3))
     hips = [list(corr.landmarks).index(23), list(corr.landmarks).index(24)]
     for k, i in enumerate(idx):
-        verts = s.posed_vertices(int(i), true_pose=True)
-        G = s.body.skeleton.forward_kinematics(s.poses_true[i].astype(np.float64), s.trans[i].astype(np.float64))
-        P = np.where((corr.joint >= 0)[:, None], G[corr.joint.clip(0), :3, 3], verts[corr.vertex.clip(0)])
+        P = corr.points(s.body, s.poses_true[i].astype(np.float64), s.trans[i].astype(np.float64))
         kp[k, corr.landmarks] = project(P, s.viewmat[i].astype(np.float64), s.K[i].astype(np.float64))[0]
         conf[k, corr.landmarks] = 1.0
         cam = P @ s.viewmat[i][:3, :3].T.astype(np.float64)
@@ -141,15 +139,22 @@ def test_the_shoulders_world_weight_changes_only_the_shoulder_bones(anny_body, m
                                                                           smooth=False)
 
 
-def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body):
+@pytest.mark.parametrize("offsets", [False, True])
+def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body, monkeypatch, offsets):
     """The fit's chain over the active joints alone (weights moved onto each joint's nearest active ancestor)
-    equals the numpy FK + LBS of every joint, at random poses."""
+    equals the numpy FK + LBS of every joint (``Correspondence.points``), at random poses; with the landmarks'
+    offsets from their joints too."""
     import torch
 
+    from trioman.toolkit.fit import keypoints
     from trioman.toolkit.fit.fitter import ACTIVE_JOINTS, _Body
 
+    if offsets:
+        rng = np.random.default_rng(2)
+        monkeypatch.setattr(keypoints, "JOINT_OFFSETS", {m: tuple(rng.normal(scale=0.04, size=3)) for m in keypoints.JOINT_LANDMARKS})
     base = anny_body.to_skinned_mesh()
     body = _Body(base, correspondence(base), 300, 0)
+    assert (np.abs(body.corr.offset).sum(1) > 0).sum() == (len(keypoints.JOINT_LANDMARKS) if offsets else 0)
     pheno = torch.as_tensor([anny_body.phenotype[k] for k in ("gender", "age", "muscle", "weight", "height", "proportions")],
                             dtype=torch.float32)
     joints, points = body.rest(pheno)
@@ -161,9 +166,7 @@ def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body):
     for k in range(3):
         p, t = full[k].numpy().astype(np.float64), trans[k].numpy().astype(np.float64)
         verts = base.pose(p, t)
-        G = base.skeleton.forward_kinematics(p, t)
-        ref = np.where((c.joint >= 0)[:, None], G[c.joint.clip(0), :3, 3], verts[c.vertex.clip(0)])
-        np.testing.assert_allclose(marks[k].numpy(), ref, atol=2e-5)
+        np.testing.assert_allclose(marks[k].numpy(), c.points(base, p, t), atol=2e-5)
         np.testing.assert_allclose(sil[k].numpy(), verts[body.sil], atol=2e-5)
 
 
