@@ -129,7 +129,7 @@ def bench_landmarks(config: LandmarksBenchConfig) -> dict:
         if mark in JOINT_LANDMARKS:
             m = joint_marks.index(mark)
             d = fit_offset(subjects, m)
-            row.update(joint_rms=round(offset_rms(subjects, m, np.zeros(3)), 4), offset_mm=[round(1000 * v, 1) for v in d],
+            row.update(joint_rms=round(offset_rms(subjects, m, np.zeros(3)), 4), offset_mm=[round(1000 * float(v), 1) for v in d],
                        offset_rms=round(offset_rms(subjects, m, d), 4))
             if halves:
                 held = [offset_rms(b, m, fit_offset(a, m)) for a, b in (halves, halves[::-1])]
@@ -161,7 +161,8 @@ def landmarks_markdown(r: dict) -> str:
                    str(row.get("heldout_joint_rms", "")), str(row.get("heldout_offset_rms", ""))] if "offset_mm" in row else [""] * 5)
         lines.append("| " + " | ".join(cells) + " |")
     table = ", ".join(f"{row['landmark']}: ({', '.join(f'{v / 1000:.4f}' for v in row['offset_mm'])})"
-                      for row in r["rows"] if "offset_mm" in row)
-    lines += ["", "`toolkit/fit/keypoints.py` `JOINT_OFFSETS` (m) fitted on every subject:", "",
+                      for row in r["rows"] if row.get("heldout_offset_rms", 1.0) < row.get("heldout_joint_rms", 0.0))
+    lines += ["", "`toolkit/fit/keypoints.py` `JOINT_OFFSETS` (m), fitted on every subject, for the landmarks whose offset "
+              "brings them closer on the subjects it was not fitted on:", "",
               "```python", "{" + table + "}", "```", ""]
     return "\n".join(lines)
