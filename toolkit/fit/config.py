@@ -78,6 +78,9 @@ class FitRunConfig:
                                  help="the focal length in pixels at the output size (or --fov)")
     fov_deg: float | None = option(None, flag="--fov", metavar="DEG", check=number(1, 170),
                                    help="the long side's field of view in degrees (or --focal)")
+    cuts: tuple[int, ...] = option((), sep=",", check=integer(1), metavar="FRAMES", default_text="none: one shot",
+                                   help="the source's frame numbers where a new shot begins (a video edited from several "
+                                        "clips, comma-separated): each shot is fitted as its own motion")
     test_every: int = option(8, check=lambda v: None if isinstance(v, int) and not isinstance(v, bool) and (v == 0 or v >= 2)
                              else "must be 0 (no test frames) or an integer >= 2",
                              help="every N-th kept frame goes to the test split (0: none)")

@@ -67,6 +67,9 @@ class Observations:
     frame_index: np.ndarray  # [N] the frames' numbers in the video (neighbours in time are smoothed together)
     width: int
     height: int
+    # [N] int: the clip (shot) of each frame in a video of several; frames of different clips are neither smoothed
+    # together, read as one turn for the mirrored-frame search, nor started from each other's keyframes. None: one clip
+    clip: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         N = len(self.keypoints)
@@ -80,6 +83,13 @@ class Observations:
                 raise ValueError(f"{name}: non-finite values")
         if np.ndim(self.masks) != 3 or len(self.masks) != N:
             raise ValueError(f"masks: expected [{N}, h, w], got {list(np.shape(self.masks))}")
+        if self.clip is not None and (np.shape(self.clip) != (N,) or np.any(np.diff(np.asarray(self.clip)) < 0)):
+            raise ValueError(f"clip: expected [{N}] clip numbers in the frames' order, got {np.asarray(self.clip)[:8].tolist()}...")
+
+    @property
+    def clips(self) -> np.ndarray:
+        """[N] int: the clip of each frame (0 everywhere for one clip)."""
+        return np.zeros(len(self.keypoints), dtype=np.int64) if self.clip is None else np.asarray(self.clip, dtype=np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,7 +195,10 @@ def _distance_maps(masks: np.ndarray) -> np.ndarray:
 
 def _unmirrored(obs: Observations) -> tuple[Observations, np.ndarray]:
     """``obs`` with the frames read mirrored given their sides back. -> (observations, bool [N])"""
-    swap = swapped_frames(obs.world, obs.frame_index)
+    clips = obs.clips
+    swap = np.zeros(len(clips), dtype=bool)
+    for c in np.unique(clips):
+        swap[clips == c] = swapped_frames(obs.world[clips == c], obs.frame_index[clips == c])
     if not swap.any():
         return obs, swap
     return dataclasses.replace(obs, keypoints=exchange_sides(obs.keypoints, swap),
@@ -270,7 +283,8 @@ class _Problem:
                 terms["world"] = (torch.stack(wl) * torch.as_tensor(self.limb_weights)).mean()
         if smooth and len(frames) > 2:
             gap = torch.as_tensor(np.diff(self.obs.frame_index[frames.numpy()]))
-            steady = (gap[1:] == gap[:-1]).float()  # equal spacing on both sides: a true neighbour triple
+            one = torch.as_tensor(np.diff(self.obs.clips[frames.numpy()]) == 0)
+            steady = ((gap[1:] == gap[:-1]) & one[1:] & one[:-1]).float()  # equal spacing, one clip: a true neighbour triple
             acc = marks[2:] - 2 * marks[1:-1] + marks[:-2]
             terms["smooth"] = cfg.w_smooth * ((acc ** 2).sum(-1).mean(-1) * steady).sum() / steady.sum().clamp(min=1)
         body_pose = active_pose[:, 1:]
@@ -293,6 +307,18 @@ def _init_trans(obs: Observations, f: float, joints0: np.ndarray, R: np.ndarray)
     return world - joints0
 
 
+def _keyframes(clips: np.ndarray, count: int) -> np.ndarray:
+    """Positions of about ``count`` keyframes spread over the frames, each clip's share by its length and at least
+    one in every clip. clips [N] (non-decreasing) -> sorted int positions."""
+    N = len(clips)
+    keys = []
+    for c in np.unique(clips):
+        at = np.flatnonzero(clips == c)
+        n = max(1, min(len(at), round(count * len(at) / N)))
+        keys.append(at[np.unique(np.linspace(0, len(at) - 1, n).round().astype(int))])
+    return np.concatenate(keys)
+
+
 def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig | None = None,
                  progress=None) -> FitResult:
     """Fit Anny to ``obs``; ``base`` is Anny's default body (its topology, weights and skeleton); ``progress``:
@@ -311,11 +337,12 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig | None = N
     start = torch.as_tensor(cfg.phenotype, dtype=torch.float32).clamp(1e-4, 1 - 1e-4) if known else torch.full((6,), 0.5)
     pheno_logit = torch.logit(start).requires_grad_(not known)
     yaw = np.nan_to_num(body_yaw(obs.world))
+    clips = obs.clips
     R0 = LEVEL_CAMERA
     trans0 = _init_trans(obs, f0, base.skeleton.joints[0], R0)
 
     # stage 1: keyframes, shape, focal, pitch
-    keys = np.unique(np.linspace(0, N - 1, min(cfg.keyframes, N)).round().astype(int))
+    keys = _keyframes(obs.clips, cfg.keyframes)
     k_pose = torch.zeros(len(keys), len(ACTIVE_JOINTS), 3)
     k_pose[:, 0, 2] = torch.as_tensor(yaw[keys], dtype=torch.float32)
     k_pose.requires_grad_(True)
@@ -364,7 +391,7 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig | None = N
         good = np.flatnonzero(~bad)
         with torch.no_grad():
             for k in np.flatnonzero(bad):
-                g = good[np.argmin(np.abs(good - k))]
+                g = good[np.argmin(np.abs(good - k) + N * (clips[keys[good]] != clips[keys[k]]))]
                 turn = np_aa_to_matrix(np.array([0.0, 0.0, yaw[keys[k]] - yaw[keys[g]]]))
                 pose = k_pose[g].numpy().astype(np.float64).copy()
                 pose[0] = np_matrix_to_aa(turn @ np_aa_to_matrix(pose[0]))
@@ -377,7 +404,7 @@ def fit_sequence(obs: Observations, base: SkinnedMesh, cfg: FitConfig | None = N
         pheno = torch.sigmoid(pheno_logit).clone()
         joints, points = body.rest(pheno)
         R, f = _camera(pitch).clone(), log_f.exp().clone()
-    nearest = np.abs(np.arange(N)[:, None] - keys[None]).argmin(1)
+    nearest = (np.abs(np.arange(N)[:, None] - keys[None]) + N * (clips[:, None] != clips[keys][None])).argmin(1)
     k_np = k_pose.detach().numpy().astype(np.float64)
     turn = np_aa_to_matrix(np.stack([np.zeros(N), np.zeros(N), yaw - yaw[keys][nearest]], 1))
     root = np_matrix_to_aa(turn @ np_aa_to_matrix(k_np[nearest, 0]))

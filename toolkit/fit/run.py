@@ -81,13 +81,15 @@ def _track(source: Path, selection: FrameSelection, cfg: FitRunConfig, progress:
     return info, out
 
 
-def _observations(t: _Tracked) -> Observations:
+def _observations(t: _Tracked, cuts: tuple[int, ...] = ()) -> Observations:
     W, H = t.size
     scale = min(1.0, DIST_MAP_SIDE / max(W, H))
     small = (max(1, round(W * scale)), max(1, round(H * scale)))
     masks = np.stack([cv2.resize(m, small, interpolation=cv2.INTER_AREA) for m in t.masks]).astype(np.float32) / 255.0
+    index = np.array([t.indices[k] for k in t.kept])
     return Observations(keypoints=np.stack(t.keypoints), confidence=np.stack(t.confidence), world=np.stack(t.world),
-                        masks=masks, frame_index=np.array([t.indices[k] for k in t.kept]), width=W, height=H)
+                        masks=masks, frame_index=index, width=W, height=H,
+                        clip=np.searchsorted(np.sort(cuts), index, side="right") if cuts else None)
 
 
 def _focal(cfg: FitRunConfig, size: tuple[int, int], track_size: tuple[int, int]) -> float | None:
@@ -125,7 +127,7 @@ def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = No
     track = cfg.tracking
     with log.stage("read and track"):
         info, tracked = _track(source, track, cfg, progress)
-    obs = _observations(tracked)
+    obs = _observations(tracked, cfg.cuts)
     size = scaled_size(info.width, info.height, cfg.selection.long_side)  # the subject's (W, H)
     focal = _focal(cfg, size, tracked.size)
     fit_cfg = cfg.fit if focal is None else dataclasses.replace(cfg.fit, focal=focal, refine_focal=False)
@@ -165,7 +167,7 @@ def fit_video(source: str | Path, out: str | Path, cfg: FitRunConfig | None = No
             out, body=mesh, poses=result.poses.astype(np.float32), trans=result.trans.astype(np.float32),
             K=np.repeat(K[None], len(kept), 0).astype(np.float32),
             viewmat=np.repeat(result.viewmat[None], len(kept), 0).astype(np.float32),
-            split=split, sequence=[SEQUENCE] * len(kept),
+            split=split, sequence=[SEQUENCE if obs.clip is None else f"{SEQUENCE}_shot{c}" for c in obs.clips],
             images=(f.astype(np.float32) / 255.0 * (m[..., None] / 255.0) for f, m in zip(kept_frames(cfg.selection), masks)),
             masks=(m.astype(np.float32) / 255.0 for m in masks),
             width=size[0], height=size[1], body_model="anny", background=(0.0, 0.0, 0.0), phenotype=result.phenotype,
@@ -210,7 +212,7 @@ def _report(source: Path, info: VideoInfo, cfg: FitRunConfig, fit_cfg: FitConfig
         "format": "trioman-fit", "version": 1, "trioman": __version__, "source": str(source),
         "video": {"kind": info.kind, "fps": info.fps, "frames": info.frames, "width": info.width, "height": info.height,
                   "rotation": info.rotation},
-        "selection": dataclasses.asdict(cfg.selection), "size": list(size), "track_size": list(t.size),
+        "selection": dataclasses.asdict(cfg.selection), "cuts": list(cfg.cuts), "size": list(size), "track_size": list(t.size),
         "camera": {"focal_px": round(float(result.K[0, 0]) * size[0] / t.size[0], 3), "focal_given": fit_cfg.focal is not None,
                    "viewmat": np.round(result.viewmat, 6).tolist()},
         "phenotype": result.phenotype,

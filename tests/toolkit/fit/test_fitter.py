@@ -139,7 +139,7 @@ def test_the_shoulders_world_weight_changes_only_the_shoulder_bones(anny_body, m
                                                                           smooth=False)
 
 
-@pytest.mark.parametrize("offsets", [False, True])
+@pytest.mark.parametrize("offsets", ["none", "shipped", "random"])
 def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body, monkeypatch, offsets):
     """The fit's chain over the active joints alone (weights moved onto each joint's nearest active ancestor)
     equals the numpy FK + LBS of every joint (``Correspondence.points``), at random poses; with the landmarks'
@@ -149,12 +149,13 @@ def test_the_fit_poses_its_points_as_the_full_skeleton_does(anny_body, monkeypat
     from trioman.toolkit.fit import keypoints
     from trioman.toolkit.fit.fitter import ACTIVE_JOINTS, _Body
 
-    if offsets:
-        rng = np.random.default_rng(2)
-        monkeypatch.setattr(keypoints, "JOINT_OFFSETS", {m: tuple(rng.normal(scale=0.04, size=3)) for m in keypoints.JOINT_LANDMARKS})
+    rng = np.random.default_rng(2)
+    table = {"none": {}, "shipped": keypoints.JOINT_OFFSETS,
+             "random": {m: tuple(rng.normal(scale=0.04, size=3)) for m in keypoints.JOINT_LANDMARKS}}[offsets]
+    monkeypatch.setattr(keypoints, "JOINT_OFFSETS", table)
     base = anny_body.to_skinned_mesh()
     body = _Body(base, correspondence(base), 300, 0)
-    assert (np.abs(body.corr.offset).sum(1) > 0).sum() == (len(keypoints.JOINT_LANDMARKS) if offsets else 0)
+    assert (np.abs(body.corr.offset).sum(1) > 0).sum() == len(table)
     pheno = torch.as_tensor([anny_body.phenotype[k] for k in ("gender", "age", "muscle", "weight", "height", "proportions")],
                             dtype=torch.float32)
     joints, points = body.rest(pheno)
@@ -180,3 +181,34 @@ def test_bad_observations_are_named():
         Observations(**{**good, "confidence": np.ones((N, 32))})
     with pytest.raises(ValueError, match="^observations: no frame"):
         Observations(**{**good, "keypoints": np.zeros((0, 33, 2))})
+
+
+def test_keyframes_cover_every_clip():
+    from trioman.toolkit.fit.fitter import _keyframes
+
+    one = np.zeros(100, dtype=int)
+    np.testing.assert_array_equal(_keyframes(one, 24), np.unique(np.linspace(0, 99, 24).round().astype(int)))
+    clips = np.r_[np.zeros(80, int), np.ones(5, int), np.full(15, 2)]
+    keys = _keyframes(clips, 10)
+    assert set(clips[keys]) == {0, 1, 2} and np.all(np.diff(keys) > 0)
+    assert (clips[keys] == 0).sum() == 8 and (clips[keys] == 1).sum() == 1
+
+
+def test_clips_are_unmirrored_apart():
+    """A clip filmed from behind after one from the front: the yaw jumps by pi at the cut, which within one clip
+    would read as mirrored frames; as two clips it is two motions."""
+    from trioman.toolkit.fit.fitter import _unmirrored
+
+    rng = np.random.default_rng(0)
+    N = 20
+    world = np.zeros((N, 33, 3))
+    yaw = np.r_[np.linspace(0.0, 0.3, 10), np.linspace(np.pi, np.pi + 0.3, 10)]
+    for k, a in enumerate(yaw):  # shoulders and hips across the body, turned by the yaw about the vertical
+        for left, right, y in ((11, 12, -0.5), (23, 24, 0.0)):
+            side = np.array([np.cos(a), 0.0, -np.sin(a)]) * 0.2
+            world[k, left], world[k, right] = side + [0, y, 0], -side + [0, y, 0]
+    obs = Observations(rng.uniform(0, 100, (N, 33, 2)), np.ones((N, 33)), world, np.ones((N, 8, 8), np.float32),
+                       np.arange(N), 100, 100)
+    _, swapped_as_one = _unmirrored(obs)
+    _, swapped_as_two = _unmirrored(dataclasses.replace(obs, clip=np.r_[np.zeros(10, int), np.ones(10, int)]))
+    assert swapped_as_one.sum() == 10 and not swapped_as_two.any()

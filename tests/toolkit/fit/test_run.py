@@ -80,6 +80,18 @@ def test_the_tracking_size(long_side, track_side, tracked):
     assert cfg.tracking == FrameSelection(long_side=tracked, every=3)
 
 
+def test_a_video_of_several_shots(made, tmp_path):
+    """--cuts: each shot its own sequence of the subject (and its own motion in the fit)."""
+    root, truth, fitted = made
+    cut = fitted.num_frames // 2
+    shots = fit_video(root / "video.mp4", tmp_path / "shots", FitRunConfig(focal=float(truth.K[0, 0, 0]), test_every=4, cuts=(cut,), fit=QUICK),
+                      progress=False, say=lambda line: None)
+    index = np.array([int(n) for n in shots.frame_names])
+    assert list(shots.sequence) == ["video_shot0" if i < cut else "video_shot1" for i in index]
+    assert json.loads((tmp_path / "shots" / "fit.json").read_text())["cuts"] == [cut]
+    assert compare(shots, truth)["pa_mpjpe"] < 100.0
+
+
 def test_the_subject_can_be_replaced_only_with_overwrite(made, tmp_path):
     root, truth, _ = made
     with pytest.raises(FileExistsError, match="overwrite"):
@@ -103,7 +115,8 @@ def test_a_video_without_a_person_is_one_error(tmp_path):
 
 
 @pytest.mark.parametrize("kwargs, field", [(dict(focal=10.0, fov_deg=60.0), "focal and fov_deg"), (dict(fov_deg=0.5), "fov_deg"),
-                                            (dict(test_every=1), "test_every"), (dict(focal=float("nan")), "focal")])
+                                            (dict(test_every=1), "test_every"), (dict(focal=float("nan")), "focal"),
+                                            (dict(cuts=(0,)), "cuts")])
 def test_bad_settings_are_named(kwargs, field):
     with pytest.raises(ValueError, match=f"^{field}: "):
         FitRunConfig(**kwargs)
