@@ -23,8 +23,8 @@ def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig 
     noise, fitted poses) the same synthetic subject re-rendered with them in OUT/subjects (made once). Fitted poses:
     the re-rendered subject's every frame as a video (OUT/subjects/<name>.mp4) at the plan's ``video_side`` (the
     scene rendered again at that size, OUT/subjects/<name>_video; the same draws at any size), ``trioman fit`` on it
-    tracking at the video's size and writing at the subject's, each sequence a shot of its own (``--cuts``: the test
-    motions are clips from other views), with a phone's focal prior (OUT/subjects/<name>_fit:
+    tracking at the video's size and writing at the subject's, each test frame a shot of its own (``--cuts``: the
+    test motions are a few frames of a motion each, from cameras of their own), with a phone's focal prior (OUT/subjects/<name>_fit:
     fit.json, overlays), the fit linked to the truth
     (toolkit/synth/linked.py) with the truth's split: the test frames' poses are fitted too, as a user's are (and
     refitted to their pixels when evaluated).
@@ -52,8 +52,11 @@ def regime_subject(subject: Path, out: Path, plan: AblationPlan, fit: FitConfig 
             synthesize_subject(big, stem.with_name(stem.name + "_video"), overwrite=True, progress=False, video=video,
                                video_frames="all")
     if not (fit_dir / "subject.json").is_file():
-        seq = load_subject(truth_dir, check_images=False).sequence  # the video's frames in the subject's order
-        cuts = tuple(int(k) for k in np.flatnonzero(seq[1:] != seq[:-1]) + 1)  # each test motion is its own shot
+        # the video's frames in the subject's order: the training turn, then the test motions, each a handful of
+        # frames spread over a whole motion from a camera of its own (photographs more than a video): every test
+        # frame is a shot of its own
+        truth = load_subject(truth_dir, check_images=False)
+        cuts = tuple(int(k) for k in np.flatnonzero(truth.split == "test") if k > 0)
         run = FitRunConfig(selection=FrameSelection(long_side=max(cfg.width, cfg.height)), track_side=0, test_every=0, cuts=cuts)
         fit_video(video, fit_dir, run if fit is None else dataclasses.replace(run, fit=fit), overwrite=True,
                   progress=False, say=lambda line: print(f"bench ablation: fit {subject.name}: {line}", flush=True))
