@@ -84,7 +84,8 @@ class Observations:
         if np.ndim(self.masks) != 3 or len(self.masks) != N:
             raise ValueError(f"masks: expected [{N}, h, w], got {list(np.shape(self.masks))}")
         if self.clip is not None and (np.shape(self.clip) != (N,) or np.any(np.diff(np.asarray(self.clip)) < 0)):
-            raise ValueError(f"clip: expected [{N}] clip numbers in the frames' order, got {np.asarray(self.clip)[:8].tolist()}...")
+            raise ValueError(f"clip: expected [{N}] non-decreasing clip numbers, got shape {list(np.shape(self.clip))}: "
+                             f"{np.asarray(self.clip).ravel()[:8].tolist()}")
 
     @property
     def clips(self) -> np.ndarray:
@@ -225,6 +226,7 @@ class _Problem:
 
     def __init__(self, obs: Observations, body: _Body, cfg: FitConfig):
         self.obs, self.body, self.cfg = obs, body, cfg
+        self.clips = obs.clips
         corr = body.corr
         self.kp = torch.as_tensor(obs.keypoints[:, corr.landmarks], dtype=torch.float32)
         self.conf = torch.as_tensor(obs.confidence[:, corr.landmarks] * corr.weight, dtype=torch.float32)
@@ -283,7 +285,7 @@ class _Problem:
                 terms["world"] = (torch.stack(wl) * torch.as_tensor(self.limb_weights)).mean()
         if smooth and len(frames) > 2:
             gap = torch.as_tensor(np.diff(self.obs.frame_index[frames.numpy()]))
-            one = torch.as_tensor(np.diff(self.obs.clips[frames.numpy()]) == 0)
+            one = torch.as_tensor(np.diff(self.clips[frames.numpy()]) == 0)
             steady = ((gap[1:] == gap[:-1]) & one[1:] & one[:-1]).float()  # equal spacing, one clip: a true neighbour triple
             acc = marks[2:] - 2 * marks[1:-1] + marks[:-2]
             terms["smooth"] = cfg.w_smooth * ((acc ** 2).sum(-1).mean(-1) * steady).sum() / steady.sum().clamp(min=1)

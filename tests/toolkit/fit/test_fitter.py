@@ -181,6 +181,10 @@ def test_bad_observations_are_named():
         Observations(**{**good, "confidence": np.ones((N, 32))})
     with pytest.raises(ValueError, match="^observations: no frame"):
         Observations(**{**good, "keypoints": np.zeros((0, 33, 2))})
+    with pytest.raises(ValueError, match=r"^clip: expected \[2\] non-decreasing"):
+        Observations(**{**good, "clip": np.array([1, 0])})
+    with pytest.raises(ValueError, match=r"^clip: .*shape \[3\]"):
+        Observations(**{**good, "clip": np.zeros(3, int)})
 
 
 def test_keyframes_cover_every_clip():
