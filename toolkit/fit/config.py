@@ -23,7 +23,11 @@ class FitConfig:
     focal: float | None = None  # pixels; None: the phone prior times the long side
     refine_focal: bool = True
     phenotype: tuple[float, ...] | None = None  # Anny's shape when known (PHENOTYPE_LABELS order): not fitted
-    keyframes: int = option(24, check=integer(1), help="frames the shape and camera are fitted on")
+    # each keyframe is fitted from a body at rest turned to the world landmarks' yaw; the other frames start from
+    # their nearest keyframe's pose and stay near it, so dense keyframes leave fewer frames in a neighbour's minimum
+    # (docs/fit.md, "Measured": 24 -> 144 keyframes)
+    keyframes: int = option(144, check=integer(1), help="frames fitted first, each from a body at rest, with the shape "
+                                                        "and camera; every other frame starts from its nearest keyframe")
     key_iterations: int = option(300, check=integer(1), help="the keyframes' iterations")
     all_iterations: int = option(250, flag="--iterations", check=integer(1), help="the iterations over every frame")
     lr: float = 0.03
