@@ -95,6 +95,15 @@ def error_map(pred: np.ndarray, gt: np.ndarray, gain: float = 4.0) -> np.ndarray
     return bgr[..., ::-1].astype(np.float32) / 255
 
 
+def poses_key(poses: str, refit: RefitSettings | None = None) -> str:
+    """What an evaluation at ``poses`` rendered, as a reuse check compares it: the option, and for "optimised" the
+    refit's method and settings (``refit`` None: the defaults)."""
+    if poses != "optimised":
+        return poses
+    r = refit or RefitSettings()
+    return f"optimised (L-BFGS, {r.steps} steps, penalty {r.penalty:g}, scale {r.scale:g})"
+
+
 @flush_denormals()
 def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | None = None, lpips=None,
              progress: bool = True, grid_frames: int = 6, video: bool = EvalOptions.video,
@@ -136,7 +145,7 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
                          lambda k: bar.update(k - bar.n))
         bar.close()
         poses = (f"{'stored' if corrected is None else 'stored, corrected by the run'}, refitted to each frame "
-                 f"({refit.steps} steps at {refit.scale:g} of the size)")
+                 f"({refit.steps} L-BFGS steps at {'full size' if refit.scale == 1 else f'{refit.scale:g} of the size'})")
     out.mkdir(parents=True, exist_ok=True)
     idx = subject.indices(split)
     if len(idx) == 0:
@@ -159,7 +168,8 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
         if int(i) in picks:
             triplets[-1] = (gt, pred, error_map(pred, gt))
     # "poses" says what the frames were rendered at; "poses_key" is the option asked for (a reuse check compares it)
-    summary = {**_summarise(rows, split, step, cfg, lpips is not None, protocol), "poses": poses, "poses_key": requested}
+    summary = {**_summarise(rows, split, step, cfg, lpips is not None, protocol), "poses": poses,
+               "poses_key": poses_key(requested, refit)}
     _write_reports(out, rows, summary)
     grid = [im for t in triplets if len(t) == 3 for im in t]
     labels = [f"{name} {r['frame']}" for r, t in zip(rows, triplets) if len(t) == 3 for name in ("GT", "render", "error x4")]

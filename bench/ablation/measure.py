@@ -20,7 +20,7 @@ from trioman.runtime.metrics import psnr as psnr_db
 from trioman.runtime.outputs import atomic_path
 from trioman.runtime.preview import contact_sheet
 from trioman.runtime.pseudo_gt import PseudoConfig, Source, make_pseudo_frames
-from trioman.toolkit.evaluate import evaluate, load_run
+from trioman.toolkit.evaluate import evaluate, load_run, poses_key
 from trioman.toolkit.loops.checkpoint import latest_checkpoint
 from trioman.toolkit.corpus.training import nchw, refiner_batch
 from trioman.toolkit.refiner import load_refiner
@@ -38,7 +38,7 @@ def evaluated(run: Path, iterations: int, lpips, poses: str = "stored") -> dict:
     """A finished run's test metrics (evaluated once), training time and augmentation record."""
     summary_file = run / "eval_test" / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else None
-    if summary is None or summary["step"] != iterations or summary.get("poses_key") != poses:
+    if summary is None or summary["step"] != iterations or summary.get("poses_key") != poses_key(poses):
         summary = evaluate(run, "test", lpips=lpips, progress=False, video=False, grid_frames=3, poses=poses)
     seconds = float((run / "train_log.csv").read_text().splitlines()[-1].split(",")[1])
     aug = json.loads((run / AUGMENT_JSON).read_text()) if (run / AUGMENT_JSON).is_file() else None

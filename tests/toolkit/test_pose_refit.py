@@ -22,16 +22,25 @@ from trioman.toolkit.train.loop import photometric, render, train  # noqa: E402
 SHIFT = np.array([0.06, -0.04, 0.0], np.float32)  # m, the root shift of the test frames' pixels, in camera axes
 
 
-def world_shift(viewmat: np.ndarray) -> np.ndarray:
-    """SHIFT (across the image: right, down) in the world frame of a camera with world->camera ``viewmat`` [4, 4]."""
-    return (viewmat[:3, :3].T @ SHIFT).astype(np.float32)
+def world_shift(viewmat: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``shift`` (across the image: right, down) in the world frame of a camera with world->camera ``viewmat``."""
+    return (viewmat[:3, :3].T @ shift).astype(np.float32)
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     """A 64 px plain subject whose test frames show an untrained tiny avatar of its body with the root moved by
     SHIFT across the image (premultiplied on black, its alpha the mask), their stored poses unmoved; the avatar."""
-    root = tmp_path_factory.mktemp("refit")
+    return rendered_scene(tmp_path_factory.mktemp("refit"), SHIFT)
+
+
+@pytest.fixture(scope="module")
+def exact_scene(tmp_path_factory):
+    """As ``scene``, the test frames rendered at their stored poses: each is at its best pose already."""
+    return rendered_scene(tmp_path_factory.mktemp("refit_exact"), np.zeros(3, np.float32))
+
+
+def rendered_scene(root, shift: np.ndarray):
     s = load_subject(synthesize_subject(SynthConfig(seed=3, size=64, frames=8, texture_size=256), root / "synth",
                                         progress=False).root)
     torch.manual_seed(0)
@@ -44,7 +53,7 @@ def scene(tmp_path_factory):
                 images.append(s.image(i))
                 masks.append(s.mask(i))
                 continue
-            g = model(torch.from_numpy(np.array(s.poses[i])), torch.from_numpy(s.trans[i] + world_shift(s.viewmat[i]))).refined
+            g = model(torch.from_numpy(np.array(s.poses[i])), torch.from_numpy(s.trans[i] + world_shift(s.viewmat[i], shift))).refined
             out = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, torch.from_numpy(s.viewmat[i]),
                             torch.from_numpy(s.K[i]), s.width, s.height, background=torch.zeros(3))
             images.append(out.rgb.clamp(0, 1).numpy())
@@ -72,7 +81,7 @@ def test_refit_finds_a_known_root_shift_and_leaves_the_avatar_and_other_frames_a
     cfg, seen = TrainConfig(), []
     poses, trans = refit_poses(model, subject, "test", subject.poses, subject.trans,
                                lambda img, gt: photometric(img, gt, cfg), render,
-                               RefitSettings(steps=60, scale=1.0), seen.append)
+                               RefitSettings(steps=60), seen.append)
     test = subject.indices("test")
     assert seen == list(range(1, len(test) + 1)) and poses.dtype == np.float32
     train_ids = subject.indices("train")
@@ -88,6 +97,18 @@ def test_refit_finds_a_known_root_shift_and_leaves_the_avatar_and_other_frames_a
         assert torch.equal(p, before[n]) and p.requires_grad == grads[n]
 
 
+def test_a_frame_at_its_best_pose_stays_there(exact_scene):
+    """At full size a frame rendered at its stored pose is at the loss's minimum (up to the penalty): the refit may
+    not walk it away, nor raise its loss."""
+    subject, model = exact_scene
+    cfg = TrainConfig()
+    poses, trans = refit_poses(model, subject, "test", subject.poses, subject.trans,
+                               lambda img, gt: photometric(img, gt, cfg), render)
+    for i in subject.indices("test"):
+        assert np.abs(poses[i] - subject.poses[i]).max() < 0.01 and np.linalg.norm(trans[i] - subject.trans[i]) < 2e-3
+        assert loss_at(model, subject, i, poses[i], trans[i]) <= loss_at(model, subject, i, subject.poses[i], subject.trans[i])
+
+
 def test_a_frame_whose_loss_turns_non_finite_keeps_its_pose(scene):
     subject, model = scene
     poses, trans = refit_poses(model, subject, "test", subject.poses, subject.trans,
@@ -95,8 +116,8 @@ def test_a_frame_whose_loss_turns_non_finite_keeps_its_pose(scene):
     assert np.array_equal(poses, subject.poses) and np.array_equal(trans, subject.trans)
 
 
-@pytest.mark.parametrize("field, value", [("steps", 0), ("steps", 2.5), ("steps", True), ("lr", 0.0),
-                                          ("penalty", -1.0), ("penalty", float("nan")), ("scale", 0.0), ("scale", 2.0)])
+@pytest.mark.parametrize("field, value", [("steps", 0), ("steps", 2.5), ("steps", True), ("penalty", -1.0),
+                                          ("penalty", float("nan")), ("scale", 0.0), ("scale", 2.0)])
 def test_bad_refit_settings_are_named(field, value):
     with pytest.raises(ValueError, match=f"^{field}: "):
         RefitSettings(**{field: value})
@@ -109,8 +130,8 @@ def test_evaluation_at_refitted_poses_and_its_command(scene, tmp_path, capsys):
     stored = evaluate(run, "test", tmp_path / "e_stored", progress=False, video=False, poses="stored")
     refit = evaluate(run, "test", tmp_path / "e_opt", progress=False, video=False, poses="optimised",
                      refit=RefitSettings(steps=2))
-    assert refit["poses"] == "stored, refitted to each frame (2 steps at 0.5 of the size)"
-    assert (refit["poses_key"], stored["poses_key"]) == ("optimised", "stored")
+    assert refit["poses"] == "stored, refitted to each frame (2 L-BFGS steps at full size)"
+    assert (refit["poses_key"], stored["poses_key"]) == ("optimised (L-BFGS, 2 steps, penalty 1, scale 1)", "stored")
     assert refit["frames"] == stored["frames"] and refit["mean"]["psnr"] != stored["mean"]["psnr"]
     from trioman.cli import main
 
