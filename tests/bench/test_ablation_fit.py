@@ -50,6 +50,10 @@ def test_the_ablation_on_fitted_poses(tmp_path, capsys):
     assert main(["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--poses", "fit", "--coverage", "0.5",
                  "--video-side", "256", "--iterations", "4", "--seeds", "1", "--no-training"]) == 0
     assert summary_file.stat().st_mtime_ns == written  # a run evaluated at its refitted poses is reused, not refitted again
+    summary_file.write_text(json.dumps({**summary, "poses_key": "optimised"}))  # as an earlier refit recorded it
+    assert main(["bench", "ablation", "--corpus", str(corpus), "--out", str(out), "--poses", "fit", "--coverage", "0.5",
+                 "--video-side", "256", "--iterations", "4", "--seeds", "1", "--no-training"]) == 0
+    assert json.loads(summary_file.read_text())["poses_key"].startswith("optimised (L-BFGS")  # another refit: evaluated again
     fit = report["fit"][name]
     assert fit["frames"] == linked.num_frames and 0 < fit["pa_mpjpe"] < 500 and fit["pa_mpjpe_test"] > 0
     assert "## The fitted poses against the truth" in (out / "ablation.md").read_text()
