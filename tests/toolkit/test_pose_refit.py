@@ -13,7 +13,7 @@ from tests.toolkit.train.factories import TINY_AVATAR  # noqa: E402
 from trioman.runtime.formats import load_subject, save_subject  # noqa: E402
 from trioman.toolkit.avatar.model import GaussianAvatar  # noqa: E402
 from trioman.toolkit.evaluate import evaluate  # noqa: E402
-from trioman.toolkit.pose_refit import RefitSettings, refit_poses  # noqa: E402
+from trioman.toolkit.pose_refit import RefitSettings, _minimise, refit_poses  # noqa: E402
 from trioman.toolkit.render import rasterize  # noqa: E402
 from trioman.toolkit.synth.subject import SynthConfig, synthesize_subject  # noqa: E402
 from trioman.toolkit.train.config import TrainConfig  # noqa: E402
@@ -107,6 +107,16 @@ def test_a_frame_at_its_best_pose_stays_there(exact_scene):
     for i in subject.indices("test"):
         assert np.abs(poses[i] - subject.poses[i]).max() < 0.01 and np.linalg.norm(trans[i] - subject.trans[i]) < 2e-3
         assert loss_at(model, subject, i, poses[i], trans[i]) <= loss_at(model, subject, i, subject.poses[i], subject.trans[i])
+
+
+def test_the_search_against_a_quadratic_of_known_minimum():
+    """Badly scaled (curvatures 1e-2 to 1e2): the line search finds the minimum; started at it, it stays."""
+    c = torch.tensor([0.3, -0.2, 0.05, 0.0])
+    w = torch.tensor([1e-2, 1.0, 1e2, 10.0])
+    found = _minimise(lambda d: (w * (d - c).square()).sum() + 1.0, 4, 50)
+    assert torch.allclose(found, c, atol=1e-3)
+    assert torch.equal(_minimise(lambda d: (w * d.square()).sum(), 4, 50), torch.zeros(4))
+    assert torch.equal(_minimise(lambda d: d.sum() * float("inf"), 4, 5), torch.zeros(4))
 
 
 def test_a_frame_whose_loss_turns_non_finite_keeps_its_pose(scene):
