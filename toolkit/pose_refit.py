@@ -7,7 +7,7 @@ joint rotations and the root of every frame, from the given poses, on the traini
 a penalty on the change, by L-BFGS with a strong-Wolfe line search: each step's length comes from the loss's own
 curvature, so a frame already at its best pose stays there (Adam's first steps move every joint by its learning rate
 whatever the gradient, and walk an exact pose away). Refit at the size the metric is measured at: a splat avatar
-rendered smaller than it was trained aliases, and the pose that best matches the reduced image is a shifted one.
+rendered smaller than it was trained is not its reduced image, and the pose that best matches it is a shifted one.
 The frame's pixels are used, so the numbers it gives are an avatar's quality at its best-fitting pose, not a
 prediction; reports say which poses they used.
 """
