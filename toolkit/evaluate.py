@@ -101,7 +101,7 @@ def poses_key(poses: str, refit: RefitSettings | None = None) -> str:
     if poses != "optimised":
         return poses
     r = refit or RefitSettings()
-    return f"optimised (L-BFGS, {r.steps} steps, penalty {r.penalty:g}, scale {r.scale:g})"
+    return f"optimised (L-BFGS, at most {r.steps} steps, penalty {r.penalty:g}, scale {r.scale:g})"
 
 
 @flush_denormals()
@@ -145,7 +145,7 @@ def evaluate(run: str | Path, split: str = EvalOptions.split, out: str | Path | 
                          lambda k: bar.update(k - bar.n))
         bar.close()
         poses = (f"{'stored' if corrected is None else 'stored, corrected by the run'}, refitted to each frame "
-                 f"({refit.steps} L-BFGS steps at {'full size' if refit.scale == 1 else f'{refit.scale:g} of the size'})")
+                 f"(L-BFGS, at most {refit.steps} steps, at {'full size' if refit.scale == 1 else f'{refit.scale:g} of the size'})")
     out.mkdir(parents=True, exist_ok=True)
     idx = subject.indices(split)
     if len(idx) == 0:

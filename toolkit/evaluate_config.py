@@ -26,7 +26,8 @@ class EvalOptions:
                              "(stored), or at the recorded ground-truth poses (true: synthetic subjects made with "
                              "--pose-noise; measures the avatar, not the pose noise), or at the run's poses refitted to "
                              "each frame's own pixels with the avatar frozen (optimised: fitted videos; test-time pose "
-                             "optimisation, 20 Adam steps per frame at half size)")
+                             "optimisation: L-BFGS at full size until it converges, at most 200 iterations a frame; "
+                             "far slower than the other choices)")
     video: bool = option(True, help="write the MP4 of the frames")
 
     def __post_init__(self) -> None:

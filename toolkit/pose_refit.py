@@ -28,7 +28,9 @@ from trioman.toolkit.train.data import load_frames
 
 @dataclass(frozen=True)
 class RefitSettings:
-    steps: int = 30  # L-BFGS iterations per frame (each about 1.2 renders with its gradient)
+    steps: int = 200  # most L-BFGS iterations per frame (each about 1.2 renders with its gradient); a frame ends
+    # sooner when L-BFGS converges (its step or its change in loss below 1e-9). A fixed small count is not enough:
+    # frames far from their best pose are still rising when frames near it have stopped, which favours the latter
     penalty: float = 1.0  # weight of the change's mean squared joint rotation (rad^2) plus squared root shift (m^2)
     scale: float = 1.0  # of the subject's image size (below 1: faster, biased, see the module's docstring)
 
@@ -78,8 +80,8 @@ def refit_poses(model: GaussianAvatar, subject: Subject, split: str, poses: np.n
 
 
 def _minimise(loss_at: Callable[[torch.Tensor], torch.Tensor], n: int, steps: int) -> torch.Tensor:
-    """The change [n] (from zero) that L-BFGS finds in ``steps`` iterations; zero when the loss at zero is not
-    finite or the search ends no lower than it started."""
+    """The change [n] (from zero) that L-BFGS finds in at most ``steps`` iterations; zero when the loss at zero
+    is not finite or the search ends no lower than it started."""
     zero = torch.zeros(n)
     with torch.no_grad():
         start = float(loss_at(zero))
