@@ -24,7 +24,12 @@ def test_bench_fit_compares_a_fit_with_its_truth(tmp_path, capsys):
     assert row["cost_of_the_frames_db"] == round(row["psnr_true_poses"] - row["psnr_true_poses_video_frames"], 2)
     assert "fitted, refined" in md and "the video's frames and masks" in md
     # and the field's protocol: the test poses refitted to their pixels, both arms the same way
-    assert row["cost_refined_refitted_db"] == round(row["psnr_true_refitted"] - row["psnr_refined_refitted"], 2)
+    for arm in ("fitted", "refined"):
+        assert row[f"cost_{arm}_refitted_db"] == round(row["psnr_true_refitted"] - row[f"psnr_{arm}_refitted"], 2)
+        assert row[f"cost_{arm}_refitted_same_frames_db"] == round(
+            row["psnr_true_video_refitted"] - row[f"psnr_{arm}_refitted"], 2)
+    worst = max(row[k] for k in row if k.startswith("cost_") and "_refitted" in k)
+    assert f"{'met' if worst <= 1.0 else 'MISSED'} (worst {worst})" in md
     assert "refitted to each held-out frame's pixels" in md and f"| {row['psnr_fitted_refitted']} |" in md
     assert (tmp_path / "fit_work" / "s1004_avatar_true" / "eval_test_optimised").is_dir()
     # the twin of the video's frames holds the fitted subject's own pixels at the truth's poses and cameras
