@@ -12,6 +12,7 @@ PROTOCOLS = ("ours", "exavatar")
 # evaluate(poses=...): the run's corrected poses, the subject's stored, the truth, or the run's refitted to each
 # frame's own pixels (toolkit/pose_refit.py)
 POSES = ("run", "stored", "true", "optimised")
+REFIT_STEPS = 200  # most L-BFGS iterations a frame of the "optimised" refit (toolkit/pose_refit.py, RefitSettings)
 
 
 @dataclass(frozen=True)
@@ -26,7 +27,7 @@ class EvalOptions:
                              "(stored), or at the recorded ground-truth poses (true: synthetic subjects made with "
                              "--pose-noise; measures the avatar, not the pose noise), or at the run's poses refitted to "
                              "each frame's own pixels with the avatar frozen (optimised: fitted videos; test-time pose "
-                             "optimisation: L-BFGS at full size until it converges, at most 200 iterations a frame; "
+                             f"optimisation: L-BFGS at full size until it converges, at most {REFIT_STEPS} iterations a frame; "
                              "far slower than the other choices)")
     video: bool = option(True, help="write the MP4 of the frames")
 

@@ -23,12 +23,13 @@ import torch
 
 from trioman.runtime.formats import Subject
 from trioman.toolkit.avatar.model import GaussianAvatar
+from trioman.toolkit.evaluate_config import REFIT_STEPS
 from trioman.toolkit.train.data import load_frames
 
 
 @dataclass(frozen=True)
 class RefitSettings:
-    steps: int = 200  # most L-BFGS iterations per frame (each about 1.2 renders with its gradient); a frame ends
+    steps: int = REFIT_STEPS  # most L-BFGS iterations per frame (each about 1.2 renders with its gradient); a frame ends
     # sooner when L-BFGS converges (its step or its change in loss below 1e-9). A fixed small count is not enough:
     # frames far from their best pose are still rising when frames near it have stopped, which favours the latter
     penalty: float = 1.0  # weight of the change's mean squared joint rotation (rad^2) plus squared root shift (m^2)
