@@ -5,7 +5,10 @@ labels (and negating the world landmarks' depth about the hips) undoes it. Its w
 yaw, which changes smoothly over neighbouring frames of a video; the mirrored reading turns a yaw ``a`` into
 ``pi - a``. The reading of all frames at once is the one of least cost (Viterbi over two states per frame): the
 squared yaw change between neighbours per frame of gap, plus ``SWAP_COST`` for each frame read mirrored, so the
-model's labels stand unless the motion disagrees.
+model's labels stand unless the motion disagrees. A frame near a profile view cannot be exchanged (its two readings
+give about the same yaw), so a wrong reading there (the model now and then reads a back view as a profile) would
+decide the frames around it; the chain may therefore step over one such frame, from its previous neighbour to its
+next, for ``SKIP_COST``, more than a turn through the profile costs and less than a reading far from both sides.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ MIRROR = np.array([0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9] + [i + 1 if i % 2 else i - 
 SWAP_COST = 0.01  # rad^2 per frame: a tie-breaker between readings that fit the motion equally
 # near a profile view both readings give about the same yaw, which cannot tell them apart: the model's stands
 MIN_APART = np.radians(40.0)
+SKIP_COST = np.radians(30.0) ** 2  # rad^2: stepping over one profile frame's reading
 
 
 def body_yaw(world: np.ndarray) -> np.ndarray:
@@ -43,21 +47,32 @@ def swapped_frames(world: np.ndarray, frame_index: np.ndarray) -> np.ndarray:
     if len(known) < 2:
         return out
     y = np.stack([yaw[known], _wrap(np.pi - yaw[known])], 1)  # [K, 2]: as read, mirrored
-    gap = np.maximum(np.diff(np.asarray(frame_index, dtype=np.float64)[known]), 1.0)
-    unary = np.zeros((len(known), 2))
-    unary[:, 1] = np.where(np.abs(_wrap(y[:, 1] - y[:, 0])) >= MIN_APART, SWAP_COST, np.inf)
-    cost = unary[0].copy()
-    back = np.zeros((len(known), 2), dtype=np.int64)
-    for k in range(1, len(known)):
-        step = _wrap(y[k][None, :] - y[k - 1][:, None]) ** 2 / gap[k - 1]  # [from, to]
-        total = cost[:, None] + step
-        back[k] = total.argmin(0)
-        cost = total.min(0) + unary[k]
-    state = int(cost.argmin())
-    for k in range(len(known) - 1, -1, -1):
+    t = np.asarray(frame_index, dtype=np.float64)[known]
+    profile = np.abs(_wrap(y[:, 1] - y[:, 0])) < MIN_APART
+    unary = np.where(profile[:, None], [0.0, np.inf], [0.0, SWAP_COST])  # [K, 2]
+
+    def step(a: int, b: int) -> np.ndarray:
+        return _wrap(y[b][None, :] - y[a][:, None]) ** 2 / max(t[b] - t[a], 1.0)  # [from, to]
+
+    K = len(known)
+    cost = np.zeros((K, 2))
+    came = np.zeros((K, 2, 2), dtype=np.int64)  # each (position, reading)'s best predecessor (position, reading)
+    cost[0] = unary[0]
+    for k in range(1, K):
+        total = cost[k - 1][:, None] + step(k - 1, k)
+        best, frm = total.min(0), np.stack([np.full(2, k - 1), total.argmin(0)], 1)
+        if k >= 2 and profile[k - 1]:
+            over = cost[k - 2][:, None] + step(k - 2, k) + SKIP_COST
+            better = over.min(0) < best
+            best = np.where(better, over.min(0), best)
+            frm[better] = np.stack([np.full(2, k - 2), over.argmin(0)], 1)[better]
+        cost[k], came[k] = best + unary[k], frm
+    k, state = K - 1, int(cost[-1].argmin())
+    while True:
         out[known[k]] = state == 1
-        state = int(back[k, state])
-    return out
+        if k == 0:
+            return out
+        k, state = int(came[k, state, 0]), int(came[k, state, 1])
 
 
 def exchange_sides(points: np.ndarray, swap: np.ndarray, world: bool = False) -> np.ndarray:

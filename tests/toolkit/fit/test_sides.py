@@ -63,3 +63,25 @@ def test_profile_views_and_unknown_frames_keep_the_models_reading():
     world[10:20] = 0.0  # no world landmarks
     assert not swapped_frames(world, np.arange(50)).any()
     assert not swapped_frames(np.zeros((1, 33, 3)), np.arange(1)).any()
+
+
+def test_a_wrong_reading_near_profile_does_not_decide_its_neighbours():
+    """The pose model now and then reads a back view as a profile one (s2102 of `bench fit`: frames at 157 and
+    180 degrees read as 71 and -74). Such a reading cannot be exchanged (its mirror image is as near profile), so
+    the chain may step over it: as a link it made the frames around it cheaper read mirrored, and the whole back
+    view of the turn was fitted as a front view."""
+    yaw = 100.0 + np.arange(120) * 1.2  # from past the profile through the back
+    seen = turning_world(yaw, seed=4)
+    glitch = turning_world(np.array([72.0, -74.0]), seed=5)
+    seen[[30, 70]] = glitch  # two readings near profile, far from the turn
+    found = swapped_frames(seen, np.arange(120))
+    assert not found.any(), np.flatnonzero(found)
+    mirrored = np.zeros(120, dtype=bool)
+    mirrored[40:46] = True  # a short stretch read mirrored among them is still found
+    found = swapped_frames(exchange_sides(seen, mirrored, world=True), np.arange(120))
+    np.testing.assert_array_equal(found, mirrored)
+    # a quick half turn (5.6 degrees a frame) read mirrored at its start: the readings through the profile, right
+    # ones, still carry the turn from one side to the other
+    half = turning_world(np.arange(32) * 5.6, seed=6)
+    mirrored = np.arange(32) < 4
+    np.testing.assert_array_equal(swapped_frames(exchange_sides(half, mirrored, world=True), np.arange(32)), mirrored)
