@@ -129,14 +129,17 @@ def fit_markdown(r: dict) -> str:
         f"Machine: {r['machine']}. Command: `trioman bench fit --seed {c['seed']} --subjects {c['subjects']} "
         f"--size {c['size']} --frames {c['frames']} --focal {c['focal']}`. Each subject is rendered with "
         "`trioman synth --style realistic --aspect 9:16 --video`, fitted from the video alone by `trioman fit`, and "
-        "compared with the truth on the frames the fit kept (joints in each camera's frame, mm).", "",
-        "| subject | kept / read | MPJPE | PA-MPJPE | PA arms | PA legs | PA head | mask IoU (person) | body vs person mask | "
-        "reprojection px | focal px (true) | s per 300 frames |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "compared with the truth on the frames the fit kept (joints in each camera's frame, mm; the turn error: the "
+        "direction the pelvis and the chest face about the camera's vertical against the truth's, less its median over "
+        "the frames, which Procrustes alignment hides).", "",
+        "| subject | kept / read | MPJPE | PA-MPJPE | PA arms | PA legs | PA head | turn error, pelvis / chest: median (p90), deg | "
+        "mask IoU (person) | body vs person mask | reprojection px | focal px (true) | s per 300 frames |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in r["rows"]:
         lines.append(f"| {row['subject']} | {row['frames_kept']} / {row['frames_read']} | {row['mpjpe']} | {row['pa_mpjpe']} | "
-                     f"{row['pa_arms']} | {row['pa_legs']} | {row['pa_head']} | {row['mask_iou']} | {row['body_mask_iou']} | "
+                     f"{row['pa_arms']} | {row['pa_legs']} | {row['pa_head']} | {row['pelvis_turn_deg']} ({row['pelvis_turn_p90_deg']}) / "
+                     f"{row['chest_turn_deg']} ({row['chest_turn_p90_deg']}) | {row['mask_iou']} | {row['body_mask_iou']} | "
                      f"{row['reprojection_px']} | {row['focal_px']} ({row['true_focal_px']}) | {row['seconds_per_300_frames']} |")
     t = r["targets"]
     worst_pa = max(row["pa_mpjpe"] for row in r["rows"])

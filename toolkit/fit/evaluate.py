@@ -1,6 +1,7 @@
 """A fit against the truth of a synthetic subject whose training frames it was fitted on (``trioman synth --video``:
 video frame k is the subject's frame k): joint errors in each camera's frame, after root and after Procrustes
-alignment, per joint group, and the person masks' agreement.
+alignment, per joint group; the body's turn about the vertical (which Procrustes alignment hides: a pelvis turned
+one way and a spine twisted back score well); and the person masks' agreement.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ JOINT_GROUPS = {
     "head": ("neck01", "head"),
 }
 ROOT = ("upperleg01.L", "upperleg01.R")  # the hips' centre
+# where the body's turn is read: the pelvis (the root) and the chest (the neck's frame)
+TURN_JOINTS = {"root": "pelvis", "neck01": "chest"}
 
 
 def procrustes(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -27,6 +30,15 @@ def procrustes(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     R = U @ D @ Vt  # B @ R ~ A
     scale = (S * np.diag(D)).sum() / max((B ** 2).sum(), 1e-12)
     return scale * B @ R + ma
+
+
+def _facing(subject: Subject, i: int, joint: str, true_pose: bool) -> float:
+    """The direction ``joint``'s frame faces (the body's front, -y at rest) about the camera's vertical, degrees."""
+    sk = subject.body.skeleton
+    pose = (subject.poses_true if true_pose else subject.poses)[i].astype(np.float64)
+    G = sk.forward_kinematics(pose, subject.trans[i].astype(np.float64))
+    front = subject.viewmat[i][:3, :3].astype(np.float64) @ G[sk.index(joint), :3, :3] @ np.array([0.0, -1.0, 0.0])
+    return float(np.degrees(np.arctan2(front[0], -front[2])))
 
 
 def _camera_joints(subject: Subject, i: int, names: list[str], true_pose: bool) -> np.ndarray:
@@ -50,6 +62,7 @@ def compare(fit: Subject, truth: Subject) -> dict:
         raise ValueError(f"{fit.root}: frame {missing[0]} is not a frame of {truth.root}")
     root = [names.index(n) for n in ROOT]
     rows = {"mpjpe": [], "pa_mpjpe": [], **{f"pa_{g}": [] for g in JOINT_GROUPS}, "mask_iou": []}
+    turn = {j: [] for j in TURN_JOINTS}
     for k, name in enumerate(fit.frame_names):
         i = by_name[name]
         a = _camera_joints(truth, i, names, true_pose=True)
@@ -62,11 +75,18 @@ def compare(fit: Subject, truth: Subject) -> dict:
         for g, joints in JOINT_GROUPS.items():
             rows[f"pa_{g}"].append(err[start:start + len(joints)].mean())
             start += len(joints)
+        for j in TURN_JOINTS:
+            turn[j].append((_facing(fit, k, j, False) - _facing(truth, i, j, True) + 180.0) % 360.0 - 180.0)
         m_fit, m_true = fit.mask(k) >= 0.5, truth.mask(i) >= 0.5
         if m_fit.shape == m_true.shape:
             rows["mask_iou"].append((m_fit & m_true).sum() / max(1, (m_fit | m_true).sum()))
     out = {k: round(1000 * float(np.mean(v)), 1) if k != "mask_iou" else (round(float(np.mean(v)), 4) if v else None)
            for k, v in rows.items()}
+    for j, key in TURN_JOINTS.items():
+        err = np.asarray(turn[j])
+        err = np.abs(err - np.median(err))  # the camera's own turn about the body, common to every frame, left out
+        out[f"{key}_turn_deg"] = round(float(np.median(err)), 1)
+        out[f"{key}_turn_p90_deg"] = round(float(np.percentile(err, 90)), 1)
     out["frames"] = len(fit.frame_names)
     out["per_frame_pa_mpjpe_mm"] = [round(1000 * float(v), 1) for v in rows["pa_mpjpe"]]
     return out

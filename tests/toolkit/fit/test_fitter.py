@@ -216,3 +216,30 @@ def test_clips_are_unmirrored_apart():
     _, swapped_as_one = _unmirrored(obs)
     _, swapped_as_two = _unmirrored(dataclasses.replace(obs, clip=np.r_[np.zeros(10, int), np.ones(10, int)]))
     assert swapped_as_one.sum() == 10 and not swapped_as_two.any()
+
+
+def test_the_turn_error_sees_what_procrustes_hides(subject):
+    """A fit whose pelvis is turned 20 degrees about the vertical on a third of the frames and whose spine and
+    hips are twisted back: no joint the errors are read on moves (Anny's hip joints hang from the pelvis' own, at the
+    root), the turn error reads the pelvis' 20 degrees on those frames (median 0: the common part is the camera's)
+    and the chest's nothing."""
+    from trioman.runtime.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+    from trioman.toolkit.fit.evaluate import compare
+
+    sk = subject.body.skeleton
+    poses = subject.poses_true.astype(np.float64).copy()
+    turned = np.arange(subject.num_frames) % 3 == 0
+    turn = axis_angle_to_matrix(np.array([0.0, 0.0, np.radians(20.0)]))
+    for i in np.flatnonzero(turned):
+        root = axis_angle_to_matrix(poses[i, 0])
+        poses[i, 0] = matrix_to_axis_angle(turn @ root)
+        back = root.T @ turn.T @ root  # the root's children keep their orientation in the world
+        for name in ("spine05", "pelvis.L", "pelvis.R"):
+            j = sk.index(name)
+            poses[i, j] = matrix_to_axis_angle(back @ axis_angle_to_matrix(poses[i, j]))
+    fit = dataclasses.replace(subject, poses=poses.astype(np.float32))
+    same = compare(dataclasses.replace(subject, poses=subject.poses_true), subject)
+    assert same["pelvis_turn_p90_deg"] == same["chest_turn_p90_deg"] == 0.0
+    scores = compare(fit, subject)
+    assert scores["pelvis_turn_deg"] == 0.0 and abs(scores["pelvis_turn_p90_deg"] - 20.0) < 0.5, scores
+    assert scores["chest_turn_p90_deg"] < 1.0 and scores["pa_mpjpe"] < 1.0 and scores["mpjpe"] < 1.0, scores
