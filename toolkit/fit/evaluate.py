@@ -32,22 +32,16 @@ def procrustes(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return scale * B @ R + ma
 
 
-def _facing(subject: Subject, i: int, joint: str, true_pose: bool) -> float:
-    """The direction ``joint``'s frame faces (the body's front, -y at rest) about the camera's vertical, degrees."""
+def _in_camera(subject: Subject, i: int, names: list[str], turn_joints, true_pose: bool) -> tuple[np.ndarray, list[float]]:
+    """Frame ``i``'s joints ``names`` in its camera's frame [M, 3], and the direction each of ``turn_joints`` faces
+    (the body's front, -y at rest) about the camera's vertical, degrees: one forward kinematics for both."""
     sk = subject.body.skeleton
     pose = (subject.poses_true if true_pose else subject.poses)[i].astype(np.float64)
     G = sk.forward_kinematics(pose, subject.trans[i].astype(np.float64))
-    front = subject.viewmat[i][:3, :3].astype(np.float64) @ G[sk.index(joint), :3, :3] @ np.array([0.0, -1.0, 0.0])
-    return float(np.degrees(np.arctan2(front[0], -front[2])))
-
-
-def _camera_joints(subject: Subject, i: int, names: list[str], true_pose: bool) -> np.ndarray:
-    sk = subject.body.skeleton
-    pose = (subject.poses_true if true_pose else subject.poses)[i].astype(np.float64)
-    G = sk.forward_kinematics(pose, subject.trans[i].astype(np.float64))
-    world = G[[sk.index(n) for n in names], :3, 3]
     V = subject.viewmat[i].astype(np.float64)
-    return world @ V[:3, :3].T + V[:3, 3]
+    joints = G[[sk.index(n) for n in names], :3, 3] @ V[:3, :3].T + V[:3, 3]
+    fronts = [V[:3, :3] @ G[sk.index(j), :3, :3] @ np.array([0.0, -1.0, 0.0]) for j in turn_joints]
+    return joints, [float(np.degrees(np.arctan2(f[0], -f[2]))) for f in fronts]
 
 
 def compare(fit: Subject, truth: Subject) -> dict:
@@ -65,8 +59,8 @@ def compare(fit: Subject, truth: Subject) -> dict:
     turn = {j: [] for j in TURN_JOINTS}
     for k, name in enumerate(fit.frame_names):
         i = by_name[name]
-        a = _camera_joints(truth, i, names, true_pose=True)
-        b = _camera_joints(fit, k, names, true_pose=False)
+        a, facing_true = _in_camera(truth, i, names, TURN_JOINTS, true_pose=True)
+        b, facing_fit = _in_camera(fit, k, names, TURN_JOINTS, true_pose=False)
         a0, b0 = a - a[root].mean(0), b - b[root].mean(0)
         rows["mpjpe"].append(np.linalg.norm(a0 - b0, axis=1).mean())
         err = np.linalg.norm(a - procrustes(a, b), axis=1)
@@ -75,8 +69,8 @@ def compare(fit: Subject, truth: Subject) -> dict:
         for g, joints in JOINT_GROUPS.items():
             rows[f"pa_{g}"].append(err[start:start + len(joints)].mean())
             start += len(joints)
-        for j in TURN_JOINTS:
-            turn[j].append((_facing(fit, k, j, False) - _facing(truth, i, j, True) + 180.0) % 360.0 - 180.0)
+        for j, f, t in zip(TURN_JOINTS, facing_fit, facing_true):
+            turn[j].append((f - t + 180.0) % 360.0 - 180.0)
         m_fit, m_true = fit.mask(k) >= 0.5, truth.mask(i) >= 0.5
         if m_fit.shape == m_true.shape:
             rows["mask_iou"].append((m_fit & m_true).sum() / max(1, (m_fit | m_true).sum()))
