@@ -12,7 +12,7 @@ from typing import ClassVar
 from trioman.bench.common import check_names, check_path
 from trioman.runtime.options import check_options, integer, number, option
 from trioman.toolkit.corpus_training_options import BACKBONES, CORPUS_VARIANTS, REFINER_SIZE_NAMES
-from trioman.toolkit.synth.config import STYLES
+from trioman.toolkit.synth.config import CAPTURES, STYLES
 from trioman.toolkit.train.config import PRESETS
 
 OUT = "out/bench"  # the report folder of every target
@@ -193,6 +193,7 @@ class FitBenchConfig(ReportConfig):
     frames: int = option(375, check=integer(1), help="subject frames; the video holds the training split (four fifths)")
     coverage: float = option(1.0, metavar="FRACTION", check=number(0, 1, lo_open=True),
                              help="share of a full turn the video's turn spans")
+    capture: str = option("turn", choices=CAPTURES, help="the video's motion: turning in place, or a few steps first")
     style: str = option("realistic", choices=STYLES, help="the subjects' style")
     focal: str = option("prior", choices=("prior", "truth"),
                         help="the fit refines a phone's focal (prior) or is given the subject's (truth)")

@@ -44,7 +44,7 @@ def bench_fit(config: FitBenchConfig) -> dict:
         if not (truth_dir / "subject.json").is_file() or not video.is_file():
             t = time.perf_counter()
             synthesize_subject(SynthConfig(seed=seed, size=config.size, frames=config.frames, aspect=9 / 16,
-                                           coverage=config.coverage, style=config.style), truth_dir, overwrite=True,
+                                           coverage=config.coverage, capture=config.capture, style=config.style), truth_dir, overwrite=True,
                                progress=False, video=video)
             say(f"{truth_dir.name}: subject and video rendered ({time.perf_counter() - t:.0f} s)")
         truth = load_subject(truth_dir)
@@ -125,10 +125,13 @@ def _cost_of_fitting(fitted, truth, stem: Path, iterations: int) -> dict:
 def fit_markdown(r: dict) -> str:
     c = r["config"]
     lines = [
-        f"# trioman bench fit ({c['style']} subjects, long side {c['size']} px, 9:16, focal: {c['focal']})", "",
+        f"# trioman bench fit ({c['style']} subjects, long side {c['size']} px, 9:16, capture: {c['capture']}, "
+        f"coverage {c['coverage']:g}, focal: {c['focal']})", "",
         f"Machine: {r['machine']}. Command: `trioman bench fit --seed {c['seed']} --subjects {c['subjects']} "
-        f"--size {c['size']} --frames {c['frames']} --focal {c['focal']}`. Each subject is rendered with "
-        "`trioman synth --style realistic --aspect 9:16 --video`, fitted from the video alone by `trioman fit`, and "
+        f"--size {c['size']} --frames {c['frames']} --capture {c['capture']} --coverage {c['coverage']:g} "
+        f"--style {c['style']} --focal {c['focal']}`. Each subject is rendered with "
+        f"`trioman synth --style {c['style']} --aspect 9:16 --capture {c['capture']} --coverage {c['coverage']:g} "
+        "--video`, fitted from the video alone by `trioman fit`, and "
         "compared with the truth on the frames the fit kept (joints in each camera's frame, mm; the turn error: the "
         "direction the pelvis and the chest face about the camera's vertical against the truth's, less its median over "
         "the frames, which Procrustes alignment hides).", "",

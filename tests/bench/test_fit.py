@@ -45,8 +45,19 @@ def test_bench_fit_compares_a_fit_with_its_truth(tmp_path, capsys):
     assert len(lines) == 2 + 4 and "fitted (" in lines[1] and lines[-1].startswith("bench fit: s1004: avatar on the true poses and the video's frames")
 
 
+def test_bench_fit_fits_a_capture_of_a_few_steps(tmp_path):
+    r = bench_fit(FitBenchConfig(out=tmp_path, subjects=1, size=192, frames=14, iterations=20, capture="steps", coverage=0.5))
+    (row,) = r["rows"]
+    assert row["frames_kept"] >= 2 and 0 < row["pa_mpjpe"] < 300
+    from trioman.runtime.formats import load_subject
+
+    made = load_subject(tmp_path / "fit_work" / "s1004").meta["generator"]
+    assert made["capture"] == "steps" and made["coverage"] == 0.5
+    assert "capture: steps, coverage 0.5" in fit_markdown(r) and "--capture steps --coverage 0.5" in fit_markdown(r)
+
+
 @pytest.mark.parametrize("kwargs, field", [(dict(focal="guess"), "focal"), (dict(subjects=0), "subjects"),
-                                            (dict(style="cartoon"), "style")])
+                                            (dict(style="cartoon"), "style"), (dict(capture="jog"), "capture")])
 def test_bad_bench_settings_are_named(kwargs, field):
     with pytest.raises(ValueError, match=f"^{field}: "):
         FitBenchConfig(**kwargs)
