@@ -19,9 +19,6 @@ from trioman.runtime.person.models import PoseModels, check_image, load_models
 
 STATUSES = ("ok", "no_person", "two_people", "cut_by_edge", "low_confidence")  # in the order they are decided
 TORSO = (11, 12, 23, 24)  # shoulders and hips
-# the hands' tips (pinky, index, thumb): a hand reaching past the frame's side leaves the body whole enough to fit
-# and to train on (the wrist, the elbow and the shoulder still have to lie inside)
-HAND_TIPS = (17, 18, 19, 20, 21, 22)
 
 
 @dataclass(frozen=True)
@@ -33,9 +30,8 @@ class TrackerConfig:
     second_person_score: float = 0.5  # a second detection at or above this -> "two_people"
     min_person_score: float = 0.8  # the landmark model's person flag below this -> "low_confidence"
     min_torso_visibility: float = 0.5  # the mean visibility of shoulders and hips below this -> "low_confidence"
-    edge_margin: float = 0.0  # a keypoint (not a hand's tip) further than this outside the frame -> "cut_by_edge"
-    edge_mask_fraction: float = 0.01  # person pixels (mask >= 0.5) on more than this share of the top or bottom side -> "cut_by_edge"
-    side_mask_fraction: float = 0.1  # the same on the left or right side, where a hand alone covers up to ~7 %
+    edge_margin: float = 0.0  # a keypoint further than this outside the frame -> "cut_by_edge"
+    edge_mask_fraction: float = 0.01  # person pixels (mask >= 0.5) on more than this share of a frame side -> "cut_by_edge"
     redetect_every: int = 30  # also run the detector every N tracked frames, to see a second person (0: never)
     threads: int = 1  # LiteRT threads per model
 
@@ -160,10 +156,9 @@ class PersonTracker:
         else:
             box = np.concatenate([lm.keypoints.min(0), lm.keypoints.max(0)])
         outside = ((lm.keypoints < -cfg.edge_margin) | (lm.keypoints > np.array([w, h]) + cfg.edge_margin)).any(1)
-        outside[list(HAND_TIPS)] = False
-        sides = {"top": (person[0].mean(), cfg.edge_mask_fraction), "bottom": (person[-1].mean(), cfg.edge_mask_fraction),
-                 "left": (person[:, 0].mean(), cfg.side_mask_fraction), "right": (person[:, -1].mean(), cfg.side_mask_fraction)}
-        touched = [f"{k} {v:.0%}" for k, (v, most) in sides.items() if v > most]
+        sides = {"top": person[0].mean(), "bottom": person[-1].mean(), "left": person[:, 0].mean(),
+                 "right": person[:, -1].mean()}
+        touched = [f"{k} {v:.0%}" for k, v in sides.items() if v > cfg.edge_mask_fraction]
         torso = float(lm.visibility[list(TORSO)].mean())
         if people is not None and people > 1:
             status = "two_people"

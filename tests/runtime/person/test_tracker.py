@@ -58,43 +58,6 @@ def test_two_people_and_low_confidence(models, astronaut):
     assert out.status == "low_confidence" and out.reason.startswith("person flag 0.9") and "(min 1)" in out.reason
 
 
-def _standing(hand_x: float, wrist_x: float, left_side: float = 0.05, bottom: float = 0.0):
-    """A person's landmark answer in a 200 x 400 frame: the body in the middle, the right arm out to the left with
-    its hand's tips at ``hand_x`` and its wrist at ``wrist_x``; the mask covers ``left_side`` of the frame's left
-    side and ``bottom`` of its bottom side."""
-    from trioman.runtime.person.landmarks import Landmarks, Roi
-
-    keypoints = np.tile([100.0, 200.0], (33, 1))
-    keypoints[[14, 16]] = [[(100 + wrist_x) / 2, 150], [wrist_x, 150]]  # the right elbow and wrist
-    keypoints[[18, 20, 22]] = [hand_x, 150]  # the right hand's tips
-    mask = np.zeros((400, 200), np.float32)
-    mask[100:380, 70:130] = 1.0
-    mask[150 - int(400 * left_side):150, :70] = 1.0  # the arm, as thick as it covers of the left side
-    if bottom:
-        mask[380:, 100 - int(100 * bottom):100 + int(100 * bottom)] = 1.0
-    return Landmarks(score=0.99, keypoints=keypoints, visibility=np.ones(33), presence=np.ones(33),
-                     world=np.zeros((33, 3)), mask=mask, next_roi=Roi((100.0, 200.0), 300.0, 0.0))
-
-
-def test_a_hand_past_the_side_keeps_the_frame(tracker):
-    frame = np.zeros((400, 200, 3), np.uint8)
-    # the hand's tips outside and 5 % of the left side covered: a hand past the side, the frame is kept
-    out = tracker._verdict(frame, _standing(hand_x=-12.0, wrist_x=6.0), None)
-    assert out.status == "ok", out.reason
-    # the wrist outside too: the arm is cut, and the reason names it (not the hand's tips)
-    out = tracker._verdict(frame, _standing(hand_x=-30.0, wrist_x=-8.0), None)
-    assert out.status == "cut_by_edge" and "right_wrist" in out.reason and "right_index" not in out.reason, out.reason
-    # a fifth of the left side covered: more than a hand
-    out = tracker._verdict(frame, _standing(hand_x=-12.0, wrist_x=6.0, left_side=0.2), None)
-    assert out.status == "cut_by_edge" and "left 20% of the side" in out.reason, out.reason
-    # the feet past the bottom: 2 % of the bottom side is enough
-    out = tracker._verdict(frame, _standing(hand_x=30.0, wrist_x=40.0, left_side=0.0, bottom=0.02), None)
-    assert out.status == "cut_by_edge" and "bottom 2% of the side" in out.reason, out.reason
-    # the old rule, a hand's worth of the side: side_mask_fraction at the top and bottom's share
-    strict = PersonTracker(TrackerConfig(side_mask_fraction=0.01), models=tracker.models)
-    assert strict._verdict(frame, _standing(hand_x=-12.0, wrist_x=6.0), None).status == "cut_by_edge"
-
-
 def test_verdicts_on_opencv_doc_pictures(tracker):
     messi = tracker(opencv_doc_picture("messi5.jpg"))
     assert messi.status == "ok" and messi.reason == "" and messi.score > 0.99
@@ -138,7 +101,6 @@ def test_bad_inputs_name_the_parameter(tracker):
         with pytest.raises(ValueError, match=r"^image: expected uint8 \[H, W, 3\] with H, W >= 2, got " + shown.replace("[", r"\[")):
             tracker(bad)
     cases = {"min_person_score": (1.5, r"must lie in \[0, 1\], got 1.5"), "edge_margin": (-1.0, "must be >= 0 pixels, got -1.0"),
-             "side_mask_fraction": (1.2, r"must lie in \[0, 1\], got 1.2"),
              "second_person_score": (float("nan"), "must be a finite number, got nan"),
              "redetect_every": (-1, "must be an integer >= 0, got -1"), "threads": (0, "must be an integer >= 1, got 0"),
              "min_tracking_score": ("0.5", "must be a finite number, got '0.5'")}
