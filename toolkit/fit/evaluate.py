@@ -6,6 +6,8 @@ one way and a spine twisted back score well); and the person masks' agreement.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 from trioman.runtime.formats import Subject
@@ -32,7 +34,7 @@ def procrustes(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return scale * B @ R + ma
 
 
-def _in_camera(subject: Subject, i: int, names: list[str], turn_joints, true_pose: bool) -> tuple[np.ndarray, list[float]]:
+def _in_camera(subject: Subject, i: int, names: list[str], turn_joints: Iterable[str], true_pose: bool) -> tuple[np.ndarray, list[float]]:
     """Frame ``i``'s joints ``names`` in its camera's frame [M, 3], and the direction each of ``turn_joints`` faces
     (the body's front, -y at rest) about the camera's vertical, degrees: one forward kinematics for both."""
     sk = subject.body.skeleton
